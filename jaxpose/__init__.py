@@ -1,0 +1,32 @@
+"""jaxpose: change of pose of an uncooperative, unknown-shape space target from two lidar
+point clouds, by plane-intersection patterns (METHOD.md), in JAX.
+
+Data flow: `simulate` → `Cloud` → `plane_frame` → `Problem` (patterns, grids) →
+`hard_score` / `soft_score` → `estimate`.
+"""
+
+from . import targets
+from .camera import Camera
+from .cloud import Cloud
+from .poses import (
+    displacement_from_motion,
+    motion_from_displacement,
+    relative_motion,
+    true_displacement,
+)
+from .rotations import angles, rotation, rotation_angle
+from .simulate import simulate
+
+__all__ = [
+    "Camera",
+    "Cloud",
+    "angles",
+    "displacement_from_motion",
+    "motion_from_displacement",
+    "relative_motion",
+    "rotation",
+    "rotation_angle",
+    "simulate",
+    "targets",
+    "true_displacement",
+]
