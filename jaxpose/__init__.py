@@ -8,18 +8,28 @@ Data flow: `simulate` → `Cloud` → `plane_frame` → `Problem` (patterns, gri
 from . import targets
 from .camera import Camera
 from .cloud import Cloud
+from .config import Config
+from .frame import PlaneFrame, plane_frame
+from .objective import hard_score, soft_score
 from .poses import (
     displacement_from_motion,
     motion_from_displacement,
     relative_motion,
     true_displacement,
 )
+from .problem import Problem
 from .rotations import angles, rotation, rotation_angle
 from .simulate import simulate
 
 __all__ = [
     "Camera",
     "Cloud",
+    "Config",
+    "PlaneFrame",
+    "Problem",
+    "hard_score",
+    "plane_frame",
+    "soft_score",
     "angles",
     "displacement_from_motion",
     "motion_from_displacement",

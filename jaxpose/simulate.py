@@ -64,7 +64,9 @@ def _mesh_ranges(mesh: Mesh, R, t, rays) -> Float[Array, " P"]:
         v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
         col = lambda a, k: a[:, k, None]  # noqa: E731
         # p = d × e2, det = e1 · p
-        px, py, pz = dy * col(e2, 2) - dz * col(e2, 1), dz * col(e2, 0) - dx * col(e2, 2), dx * col(e2, 1) - dy * col(e2, 0)
+        px = dy * col(e2, 2) - dz * col(e2, 1)
+        py = dz * col(e2, 0) - dx * col(e2, 2)
+        pz = dx * col(e2, 1) - dy * col(e2, 0)
         det = col(e1, 0) * px + col(e1, 1) * py + col(e1, 2) * pz
         ok = jnp.abs(det) > 1e-12
         inv = 1.0 / jnp.where(ok, det, 1.0)

@@ -1,0 +1,98 @@
+"""Configuration of the method: a pytree, with the fields that fix array shapes static.
+
+Lengths in metres, angles in radians. Presets: [`Config.paper`][] (the paper's setting:
+3 planes, hard objective, ±20°/±0.10 m box), [`Config.accurate`][] (default) and
+[`Config.fast`][] (tests and real-time use).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import equinox as eqx
+
+
+class Config(eqx.Module):
+    """Settings of the plane-pattern method and its search.
+
+    **Patterns** (DECISIONS.md "Patterns and grid"):
+
+    - `d`: selection half-width and cell size, metres (paper: 0.026).
+    - `extension`: grid extension on each side as a fraction of the previous pattern's
+      extent in cells (paper: 0.2).
+    - `slices`: K parallel slices per axis, offsets (k − (K−1)/2)·2d, k = 0…K−1 (static;
+      K = 1 is the paper's three planes).
+    - `grid_cells`: capacity C of each plane's grid along each axis (static). A pattern
+      whose grid (m + 2e + 1 cells) does not fit loses its outer cells and the problem's
+      status reports it; the Python boundary raises instead.
+    - `max_points`: capacity for the current cloud's valid points (static). `None` (default)
+      sizes it from the data at the Python boundary (the valid count rounded up to 512) and
+      uses the full cloud size under jit; fewer slots make scoring faster.
+    - `max_cells`: capacity for the filled cells of one previous pattern (static).
+
+    **Soft objective** (ours):
+
+    - `bin_width`: width w of the soft cell kernel, in cells, 0 < w ≤ 1 (→ 0: hard cells).
+    - `select_width`: width of the soft selection edge, as a fraction of d (→ 0: hard slab).
+
+    **Search** (issue 4):
+
+    - `angle_box`, `shift_box`: half-widths of the search box for each angle (radians) and
+      each translation component (metres); paper: 20° and 0.10 m.
+    - `global_objective`: "hard" (the paper's) or "soft" — what CMA-ES maximises (static).
+    - `population`, `generations`: CMA-ES size (static).
+    - `local`: "bfgs", "nelder_mead" or "none" — the optimistix refine on the soft objective
+      (static); `local_steps` its step limit (static).
+    - `min_score`: a result whose hard score is below this is reported as low-score.
+    """
+
+    d: float = 0.026
+    extension: float = 0.2
+    bin_width: float = 1.0
+    select_width: float = 0.5
+    angle_box: float = math.radians(20.0)
+    shift_box: float = 0.10
+    min_score: float = 0.5
+    slices: int = eqx.field(static=True, default=1)
+    grid_cells: int = eqx.field(static=True, default=128)
+    max_points: int | None = eqx.field(static=True, default=None)
+    max_cells: int = eqx.field(static=True, default=512)
+    global_objective: Literal["hard", "soft"] = eqx.field(static=True, default="soft")
+    population: int = eqx.field(static=True, default=32)
+    generations: int = eqx.field(static=True, default=40)
+    local: Literal["bfgs", "nelder_mead", "none"] = eqx.field(static=True, default="bfgs")
+    local_steps: int = eqx.field(static=True, default=100)
+
+    def __check_init__(self):
+        if self.slices < 1 or self.grid_cells < 3 or (self.max_points or 1) < 1 or self.max_cells < 1:
+            raise ValueError("slices, grid_cells, max_points and max_cells must be positive.")
+        if self.global_objective not in ("hard", "soft"):
+            raise ValueError(f"global_objective must be 'hard' or 'soft', got {self.global_objective!r}.")
+        if self.local not in ("bfgs", "nelder_mead", "none"):
+            raise ValueError(f"local must be 'bfgs', 'nelder_mead' or 'none', got {self.local!r}.")
+
+    @property
+    def num_planes(self) -> int:
+        return 3 * self.slices
+
+    def planes(self) -> tuple[tuple[int, float], ...]:
+        """(normal axis j, offset in units of d) of every cutting plane, plane 1 first."""
+        K = self.slices
+        return tuple((j, 2.0 * (k - (K - 1) / 2)) for j in range(3) for k in range(K))
+
+    @classmethod
+    def paper(cls, **kw) -> Config:
+        """The paper's setting: three planes, d = 0.026 m, the hard objective, no local refine."""
+        return cls(**{"global_objective": "hard", "local": "none", "population": 48,
+                      "generations": 60, **kw})
+
+    @classmethod
+    def accurate(cls, **kw) -> Config:
+        """The default: CMA-ES on the soft objective, then BFGS on the soft objective."""
+        return cls(**kw)
+
+    @classmethod
+    def fast(cls, **kw) -> Config:
+        """Small and quick: for tests and real-time use."""
+        return cls(**{"population": 16, "generations": 20, "local_steps": 40, **kw})

@@ -1,0 +1,274 @@
+"""The `Problem`: everything about a cloud pair that does not depend on the candidate p.
+
+Built once per pair (DECISIONS.md "Patterns and grid"): the plane frame n of the previous
+cloud, its intersection patterns on each cutting plane, each plane's grid (lo, m, the
+extension e), the previous cells' counts k and radii r, and the current cloud's valid points
+in frame n. All arrays have static shapes set by the [`jaxpose.Config`][] capacities, so a
+`Problem` jits, vmaps over pairs, and is the `args` of the scoring functions.
+
+Grid layout: plane i owns a `(C + 2) × (C + 2)` block of a flat array (C = `grid_cells`);
+grid cell (a, b), 0 ≤ a, b < C, sits at `i·(C+2)² + (a+1)·(C+2) + (b+1)`, so the 3 × 3
+neighbourhood of any cell stays inside its block. The last slot of the flat array is a dump
+that holds zeros: points that are not selected or fall outside the grid go there.
+Cell index of a coordinate η: `a = floor((η − lo)/d + 1/2) + e` (round half up).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+
+from ._checks import is_concrete
+from .cloud import Cloud
+from .config import Config
+from .frame import FRAME_STATUS_TEXT, PlaneFrame, plane_frame
+
+# Bits of Problem.status.
+PROBLEM_FRAME = 1  # the plane frame is not usable (see frame.status)
+PROBLEM_GRID_OVERFLOW = 2  # a previous pattern's grid exceeded grid_cells; outer cells dropped
+PROBLEM_CELLS_OVERFLOW = 4  # a previous pattern filled more than max_cells cells
+PROBLEM_POINTS_OVERFLOW = 8  # the current cloud has more than max_points valid points
+PROBLEM_FEW_CURRENT = 16  # the current cloud has fewer valid points than frame.MIN_POINTS
+
+NEIGHBOUR_OFFSETS = tuple((a, b) for a in (-1, 0, 1) for b in (-1, 0, 1))
+"""The 3 × 3 neighbourhood Q, as (Δa, Δb) in cells."""
+NEIGHBOUR_WEIGHTS = tuple(math.exp(-math.hypot(a, b)) for a, b in NEIGHBOUR_OFFSETS)
+"""exp(−distance in cells) of each offset (DECISIONS.md: distances measured in cells)."""
+
+
+class Problem(eqx.Module):
+    """A cloud pair prepared for scoring candidate displacements p.
+
+    **Fields** (P = number of planes, C = grid capacity; lengths in metres, frame n):
+
+    - `frame`: the [`jaxpose.PlaneFrame`][] n of the previous cloud.
+    - `d`, `bin_width`, `select_width`: from the config.
+    - `curr`: `(3, M)` current valid points in frame n (structure of arrays, zero padded).
+    - `curr_valid`: `(M,)` mask of `curr`.
+    - `lo`: `(P, 2)` smallest previous (η, ζ) of each plane's pattern (0 if empty).
+    - `ext`, `size`: `(P, 2)` extension e and cell count (m + 2e + 1, capped at C).
+    - `prev_cells`, `prev_kr`, `prev_plane`: the filled previous cells (flat indices),
+      their weights k·r and plane index, padded with zero weight to P·max_cells.
+    - `kr_sum`: `(P,)` Σ k·r of each previous pattern.
+    - `r_field`, `rm_field`: per flat cell, r (cell centre to the plane's 2D origin) and
+      r·M_prev, where M_prev(c) = max over Q(c) of exp(−δ)·[previous cell filled]; zero
+      outside each grid and in the dump.
+    - `prev_selected`, `prev_filled`: `(P,)` selected points and filled cells per plane.
+    - `status`: bit flags `PROBLEM_*` (0 = usable).
+    - `planes`, `grid_cells`: static.
+    """
+
+    frame: PlaneFrame
+    d: Float[Array, ""]
+    bin_width: Float[Array, ""]
+    select_width: Float[Array, ""]
+    curr: Float[Array, "3 M"]
+    curr_valid: Bool[Array, " M"]
+    lo: Float[Array, "P 2"]
+    ext: Int[Array, "P 2"]
+    size: Int[Array, "P 2"]
+    prev_cells: Int[Array, " L"]
+    prev_kr: Float[Array, " L"]
+    prev_plane: Int[Array, " L"]
+    kr_sum: Float[Array, " P"]
+    r_field: Float[Array, " F"]
+    rm_field: Float[Array, " F"]
+    prev_selected: Int[Array, " P"]
+    prev_filled: Int[Array, " P"]
+    status: Int[Array, ""]
+    planes: tuple[tuple[int, float], ...] = eqx.field(static=True)
+    grid_cells: int = eqx.field(static=True)
+
+    @property
+    def num_planes(self) -> int:
+        return len(self.planes)
+
+    @property
+    def block(self) -> int:
+        """Flat size of one plane's padded grid, (C + 2)²."""
+        return (self.grid_cells + 2) ** 2
+
+    @property
+    def dump(self) -> int:
+        """Flat index of the dump slot."""
+        return self.num_planes * self.block
+
+    def flat_index(self, plane: int, a: Array, b: Array, inside: Array) -> Array:
+        """Flat index of cell (a, b) of `plane`, or the dump where `inside` is false."""
+        flat = plane * self.block + (a + 1) * (self.grid_cells + 2) + (b + 1)
+        return jnp.where(inside, flat, self.dump)
+
+    def plane_coords(self, q: tuple[Array, Array, Array], plane: int):
+        """For current points q (frame ν, SoA): distance to `plane`, and continuous cell
+        coordinates (a, b) on its grid (cell centres at integers)."""
+        j, offset = self.planes[plane]
+        h = q[j] - offset * self.d
+        a = (q[(j + 1) % 3] - self.lo[plane, 0]) / self.d + self.ext[plane, 0]
+        b = (q[(j + 2) % 3] - self.lo[plane, 1]) / self.d + self.ext[plane, 1]
+        return h, a, b
+
+    def in_grid(self, plane: int, a: Array, b: Array) -> Array:
+        return (a >= 0) & (a < self.size[plane, 0]) & (b >= 0) & (b < self.size[plane, 1])
+
+    @classmethod
+    def build(cls, prev: Cloud, curr: Cloud, config: Config | None = None) -> Problem:
+        """Prepare a cloud pair (both in the camera frame c) for scoring.
+
+        Pure and jittable. At the Python boundary (concrete inputs) it raises ValueError for
+        an unusable pair: fewer than 10 valid points, a flat or ambiguous previous cloud, or
+        a pattern/cloud that exceeds the config's capacities (the message names the field to
+        raise). Under jit the same conditions set bits of `status`.
+        """
+        config = Config() if config is None else config
+        if config.max_points is None:
+            if is_concrete(curr):
+                n_valid = int(jnp.sum(curr.valid))
+                capacity = max(512, -(-n_valid // 512) * 512)
+            else:
+                capacity = curr.points.shape[-2]
+            config = dataclasses.replace(config, max_points=capacity)
+        problem = _build(prev, curr, config)
+        if is_concrete(problem):
+            raise_for_status(problem)
+        return problem
+
+
+def raise_for_status(problem: Problem) -> None:
+    """Raise a ValueError that names the problem and its fix, if `problem.status` is not 0."""
+    status = int(problem.status)
+    if status & PROBLEM_FRAME:
+        raise ValueError(
+            "previous cloud: " + FRAME_STATUS_TEXT[int(problem.frame.status)]
+            + "; the plane frame cannot be built. Give a cloud of a 3D object with distinct spreads."
+        )
+    if status & PROBLEM_FEW_CURRENT:
+        raise ValueError("current cloud: fewer than 10 valid points.")
+    if status & PROBLEM_POINTS_OVERFLOW:
+        raise ValueError("current cloud has more valid points than Config.max_points; raise it.")
+    if status & PROBLEM_GRID_OVERFLOW:
+        raise ValueError("a previous pattern is larger than the grid; raise Config.grid_cells (or d).")
+    if status & PROBLEM_CELLS_OVERFLOW:
+        raise ValueError("a previous pattern fills more cells than Config.max_cells; raise it.")
+
+
+def neighbourhood_max(occupancy: Float[Array, "... C2 C2"]) -> Float[Array, "... C2 C2"]:
+    """max over the 3 × 3 neighbourhood of exp(−distance in cells) · occupancy (zero border)."""
+    padded = jnp.pad(occupancy, [(0, 0)] * (occupancy.ndim - 2) + [(1, 1), (1, 1)])
+    n0, n1 = occupancy.shape[-2:]
+    out = jnp.zeros_like(occupancy)
+    for (da, db), w in zip(NEIGHBOUR_OFFSETS, NEIGHBOUR_WEIGHTS, strict=True):
+        out = jnp.maximum(out, w * padded[..., 1 + da : 1 + da + n0, 1 + db : 1 + db + n1])
+    return out
+
+
+def _round_half_up(x):
+    return jnp.floor(x + 0.5)
+
+
+def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
+    dtype = prev.points.dtype
+    frame = plane_frame(prev)
+    d = jnp.asarray(config.d, dtype)
+    C = config.grid_cells
+    planes = config.planes()
+    A = frame.to_frame(prev.points)
+
+    lo, ext, size, selected, filled_n, fields_r, fields_rm = [], [], [], [], [], [], []
+    cells, krs, plane_ids, kr_sums = [], [], [], []
+    status = jnp.where(frame.ok, 0, PROBLEM_FRAME)
+    for i, (j, offset) in enumerate(planes):
+        h = A[:, j] - offset * d
+        uv = (A[:, (j + 1) % 3], A[:, (j + 2) % 3])
+        sel = prev.valid & (jnp.abs(h) <= d)
+        any_sel = jnp.any(sel)
+        lo_i = [jnp.where(any_sel, jnp.min(jnp.where(sel, c, jnp.inf)), 0.0) for c in uv]
+        hi_i = [jnp.where(any_sel, jnp.max(jnp.where(sel, c, -jnp.inf)), 0.0) for c in uv]
+        m = [_round_half_up((h_ - l_) / d).astype(jnp.int32) for l_, h_ in zip(lo_i, hi_i, strict=True)]
+        e = [_round_half_up(config.extension * mk).astype(jnp.int32) for mk in m]
+        n = [mk + 2 * ek + 1 for mk, ek in zip(m, e, strict=True)]
+        status = status | jnp.where((n[0] > C) | (n[1] > C), PROBLEM_GRID_OVERFLOW, 0)
+        n = [jnp.minimum(nk, C) for nk in n]
+        idx = [
+            (_round_half_up((c - l_) / d) + ek).astype(jnp.int32)
+            for c, l_, ek in zip(uv, lo_i, e, strict=True)
+        ]
+        inside = sel & (idx[0] < n[0]) & (idx[1] < n[1])
+        counts = (
+            jnp.zeros((C, C), dtype)
+            .at[jnp.where(inside, idx[0], C), jnp.where(inside, idx[1], C)]
+            .add(1.0, mode="drop")
+        )
+        filled = counts > 0
+        ka, kb = jnp.arange(C), jnp.arange(C)
+        in_grid = (ka[:, None] < n[0]) & (kb[None, :] < n[1])
+        centre_a = lo_i[0] + (ka - e[0]).astype(dtype) * d
+        centre_b = lo_i[1] + (kb - e[1]).astype(dtype) * d
+        r = jnp.where(in_grid, jnp.hypot(centre_a[:, None], centre_b[None, :]), 0.0)
+        m_prev = neighbourhood_max(filled.astype(dtype))
+        fields_r.append(jnp.pad(r, 1))
+        fields_rm.append(jnp.pad(r * m_prev, 1))
+
+        nfilled = jnp.sum(filled)
+        status = status | jnp.where(nfilled > config.max_cells, PROBLEM_CELLS_OVERFLOW, 0)
+        (flat_cells,) = jnp.nonzero(filled.ravel(), size=config.max_cells, fill_value=0)
+        live = jnp.arange(config.max_cells) < nfilled
+        a_c, b_c = flat_cells // C, flat_cells % C
+        cells.append(i * (C + 2) ** 2 + (a_c + 1) * (C + 2) + (b_c + 1))
+        kr = (counts * r).ravel()[flat_cells]
+        krs.append(jnp.where(live, kr, 0.0))
+        plane_ids.append(jnp.full(config.max_cells, i, jnp.int32))
+        kr_sums.append(jnp.sum(counts * r))
+        lo.append(jnp.stack(lo_i))
+        ext.append(jnp.stack(e))
+        size.append(jnp.stack(n))
+        selected.append(jnp.sum(sel).astype(jnp.int32))
+        filled_n.append(nfilled.astype(jnp.int32))
+
+    # Current cloud: keep the valid points only, in frame n, as structure of arrays.
+    n_curr = jnp.sum(curr.valid)
+    status = status | jnp.where(n_curr > config.max_points, PROBLEM_POINTS_OVERFLOW, 0)
+    status = status | jnp.where(n_curr < 10, PROBLEM_FEW_CURRENT, 0)
+    (keep,) = jnp.nonzero(curr.valid, size=config.max_points, fill_value=0)
+    curr_valid = jnp.arange(config.max_points) < n_curr
+    B = frame.to_frame(curr.points[keep].astype(dtype))
+    B = jnp.where(curr_valid[:, None], B, 0.0)
+
+    flat = lambda fs: jnp.concatenate([f.ravel() for f in fs] + [jnp.zeros(1, dtype)])  # noqa: E731
+    return Problem(
+        frame=frame,
+        d=d,
+        bin_width=jnp.asarray(config.bin_width, dtype),
+        select_width=jnp.asarray(config.select_width, dtype),
+        curr=B.T,
+        curr_valid=curr_valid,
+        lo=jnp.stack(lo),
+        ext=jnp.stack(ext),
+        size=jnp.stack(size),
+        prev_cells=jnp.concatenate(cells).astype(jnp.int32),
+        prev_kr=jnp.concatenate(krs),
+        prev_plane=jnp.concatenate(plane_ids),
+        kr_sum=jnp.stack(kr_sums),
+        r_field=flat(fields_r),
+        rm_field=flat(fields_rm),
+        prev_selected=jnp.stack(selected),
+        prev_filled=jnp.stack(filled_n),
+        status=jnp.asarray(status, jnp.int32),
+        planes=planes,
+        grid_cells=C,
+    )
+
+
+def pattern_summary(problem: Problem) -> dict[str, np.ndarray]:
+    """Selected points and filled cells per plane of the previous cloud (numpy, for reports)."""
+    return {
+        "selected": np.asarray(problem.prev_selected),
+        "filled": np.asarray(problem.prev_filled),
+        "grid": np.asarray(problem.size),
+    }
+
+

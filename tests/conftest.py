@@ -1,0 +1,46 @@
+"""Shared fixtures. Tests run in float64 (the reference comparisons need it); the few float32
+checks create their arrays explicitly. Clouds and problems are built once per session so
+compiled functions are shared."""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+import jaxpose as jp  # noqa: E402
+
+DEG = np.pi / 180
+PAPER_POSES = {
+    "previous": (23.5, 23.5, 1.0),
+    "variant1": (24.5, 24.5, 2.0),
+    "variant2": (33.5, 33.5, 11.0),
+}
+T_PAPER = np.array([0.0, 0.0, 5.5])
+
+
+def paper_rotation(name):
+    return jp.rotation(*(a * DEG for a in PAPER_POSES[name]))
+
+
+@pytest.fixture(scope="session")
+def camera():
+    return jp.Camera.camcube2()
+
+
+@pytest.fixture(scope="session")
+def paper_clouds(camera):
+    """{(shape, pose): Cloud} for the paper's shapes and poses (noise-free)."""
+    out = {}
+    for shape in ("n1", "n5"):
+        target = getattr(jp.targets, shape)()
+        for pose in PAPER_POSES:
+            out[shape, pose] = jp.simulate(camera, target, paper_rotation(pose), jnp.asarray(T_PAPER))
+    return out
+
+
+@pytest.fixture(scope="session")
+def n5_problem(paper_clouds):
+    return jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"])
