@@ -84,8 +84,7 @@ class Config(eqx.Module):
     @classmethod
     def paper(cls, **kw) -> Config:
         """The paper's setting: three planes, d = 0.026 m, the hard objective, no local refine."""
-        return cls(**{"global_objective": "hard", "local": "none", "population": 48,
-                      "generations": 60, **kw})
+        return cls(**{"global_objective": "hard", "local": "none", "population": 48, "generations": 60, **kw})
 
     @classmethod
     def accurate(cls, **kw) -> Config:

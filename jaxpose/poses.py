@@ -24,9 +24,7 @@ from .rotations import angles, rotation
 
 def se3(R: Float[ArrayLike, "3 3"], t: Float[ArrayLike, "3"]) -> jaxlie.SE3:
     """The jaxlie SE(3) element of a pose (R, t), `x ↦ R x + t`."""
-    return jaxlie.SE3.from_rotation_and_translation(
-        jaxlie.SO3.from_matrix(jnp.asarray(R)), jnp.asarray(t)
-    )
+    return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(jnp.asarray(R)), jnp.asarray(t))
 
 
 def compose(R1, t1, R2, t2) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:

@@ -143,7 +143,8 @@ def raise_for_status(problem: Problem) -> None:
     status = int(problem.status)
     if status & PROBLEM_FRAME:
         raise ValueError(
-            "previous cloud: " + FRAME_STATUS_TEXT[int(problem.frame.status)]
+            "previous cloud: "
+            + FRAME_STATUS_TEXT[int(problem.frame.status)]
             + "; the plane frame cannot be built. Give a cloud of a 3D object with distinct spreads."
         )
     if status & PROBLEM_FEW_CURRENT:
@@ -193,10 +194,7 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
         n = [mk + 2 * ek + 1 for mk, ek in zip(m, e, strict=True)]
         status = status | jnp.where((n[0] > C) | (n[1] > C), PROBLEM_GRID_OVERFLOW, 0)
         n = [jnp.minimum(nk, C) for nk in n]
-        idx = [
-            (_round_half_up((c - l_) / d) + ek).astype(jnp.int32)
-            for c, l_, ek in zip(uv, lo_i, e, strict=True)
-        ]
+        idx = [(_round_half_up((c - l_) / d) + ek).astype(jnp.int32) for c, l_, ek in zip(uv, lo_i, e, strict=True)]
         inside = sel & (idx[0] < n[0]) & (idx[1] < n[1])
         counts = (
             jnp.zeros((C, C), dtype)
@@ -270,5 +268,3 @@ def pattern_summary(problem: Problem) -> dict[str, np.ndarray]:
         "filled": np.asarray(problem.prev_filled),
         "grid": np.asarray(problem.size),
     }
-
-

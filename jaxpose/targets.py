@@ -58,8 +58,20 @@ class Boxes(eqx.Module):
             [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float
         )  # index = 4*ix + 2*iy + iz
         faces = jnp.array(
-            [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-             [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+            [
+                [0, 1, 3],
+                [0, 3, 2],
+                [4, 6, 7],
+                [4, 7, 5],
+                [0, 4, 5],
+                [0, 5, 1],
+                [2, 3, 7],
+                [2, 7, 6],
+                [0, 2, 6],
+                [0, 6, 4],
+                [1, 5, 7],
+                [1, 7, 3],
+            ]
         )
         verts = (corners[None] * self.half_sizes[:, None, :]) @ jnp.swapaxes(self.rotations, 1, 2)
         verts = verts + self.centers[:, None, :]

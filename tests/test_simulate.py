@@ -39,7 +39,9 @@ def numpy_ray_cast(camera, triangles, R, t):
 
 def trimesh_boxes(boxes):
     tris = []
-    for c, h, Rb in zip(np.asarray(boxes.centers), np.asarray(boxes.half_sizes), np.asarray(boxes.rotations)):
+    for c, h, Rb in zip(
+        np.asarray(boxes.centers), np.asarray(boxes.half_sizes), np.asarray(boxes.rotations), strict=True
+    ):
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = Rb, c
         tris.append(trimesh.creation.box(extents=2 * h, transform=T).triangles)

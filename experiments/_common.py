@@ -1,0 +1,67 @@
+"""Helpers shared by the experiment scripts: the paper's setting, timing, machine info."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxpose as jp
+
+RESULTS = Path(__file__).resolve().parent.parent / "results"
+DEG = np.pi / 180
+PAPER_POSES = {"previous": (23.5, 23.5, 1.0), "variant1": (24.5, 24.5, 2.0), "variant2": (33.5, 33.5, 11.0)}
+T_PAPER = jnp.array([0.0, 0.0, 5.5])
+
+
+def paper_rotation(pose: str):
+    return jp.rotation(*(a * DEG for a in PAPER_POSES[pose]))
+
+
+def paper_cloud(shape: str, pose: str, camera=None) -> jp.Cloud:
+    camera = jp.Camera.camcube2() if camera is None else camera
+    return jp.simulate(camera, getattr(jp.targets, shape)(), paper_rotation(pose), T_PAPER)
+
+
+def machine() -> dict:
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "x64": bool(jax.config.jax_enable_x64),
+    }
+
+
+def block(x):
+    return jax.tree.map(lambda a: a.block_until_ready() if hasattr(a, "block_until_ready") else a, x)
+
+
+def time_call(fn, *args, repeats: int = 20) -> dict:
+    """Compile time (first call) and the median of `repeats` later calls, in seconds."""
+    t0 = time.perf_counter()
+    block(fn(*args))
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        block(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return {"compile_s": compile_s, "median_s": statistics.median(times), "repeats": repeats}
+
+
+def write_json(name: str, payload: dict) -> Path:
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / name
+    path.write_text(json.dumps({"machine": machine(), **payload}, indent=2))
+    print(f"wrote {path}")
+    return path
