@@ -9,6 +9,7 @@ from . import targets
 from .camera import Camera
 from .cloud import Cloud
 from .config import Config
+from .estimate import Estimate, estimate
 from .frame import PlaneFrame, plane_frame
 from .objective import hard_score, soft_score
 from .poses import (
@@ -25,6 +26,7 @@ __all__ = [
     "Camera",
     "Cloud",
     "Config",
+    "Estimate",
     "PlaneFrame",
     "Problem",
     "hard_score",
@@ -32,6 +34,7 @@ __all__ = [
     "soft_score",
     "angles",
     "displacement_from_motion",
+    "estimate",
     "motion_from_displacement",
     "relative_motion",
     "rotation",

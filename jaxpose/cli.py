@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -10,7 +11,7 @@ app = typer.Typer(help="jaxpose: pose change of an unknown-shape target from two
 
 
 @app.command()
-def paper(out: Path = typer.Option(Path("results"), help="Folder for the Markdown table.")):
+def paper(out: Annotated[Path, typer.Option(help="Folder for the Markdown table.")] = Path("results")):
     """The paper's test example: simulated cloud statistics and N5 intersection patterns."""
     from rich.console import Console
     from rich.markdown import Markdown

@@ -1,0 +1,119 @@
+"""`estimate`: the displacement between two clouds, end to end, with a status.
+
+Problem → global search (CMA-ES) → local refine (soft objective) → hard score reported.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+
+from .cloud import Cloud
+from .config import Config
+from .frame import PlaneFrame
+from .objective import hard_score, soft_score
+from .poses import motion_from_displacement
+from .problem import Problem
+from .search import global_search, local_refine
+
+SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE = 0, 1, 2, 3, 4
+STATUS_TEXT = {
+    SUCCESS: "success",
+    NOT_CONVERGED: "the local refine did not converge",
+    LOW_SCORE: "the best hard score is below Config.min_score: the patterns do not match",
+    DEGENERATE: "the problem is unusable (see Problem.status: frame, capacities, too few points)",
+    NON_FINITE: "a non-finite value appeared",
+}
+
+
+class Estimate(eqx.Module):
+    """Result of [`estimate`][].
+
+    **Fields:**
+
+    - `params`: p = (θ, φ, ψ, x, y, z), radians and metres, frame ν relative to frame n.
+    - `rotation`, `translation`: the target motion in the camera frame, x ↦ R x + t, so
+      estimates can be chained.
+    - `frame`: the plane frame n of the previous cloud.
+    - `hard`, `soft`: the objectives at `params`.
+    - `status`: one of `SUCCESS` … `NON_FINITE` (`STATUS_TEXT`); `success` is status == 0.
+    - `evaluations`: objective evaluations of the global stage; `local_steps`: refine steps.
+    - `history`: best objective value of each CMA-ES generation.
+    - `global_params`, `global_score`: the global stage's result, before the refine.
+    """
+
+    params: Float[Array, "6"]
+    rotation: Float[Array, "3 3"]
+    translation: Float[Array, "3"]
+    frame: PlaneFrame
+    hard: Float[Array, ""]
+    soft: Float[Array, ""]
+    status: Int[Array, ""]
+    evaluations: Int[Array, ""]
+    local_steps: Int[Array, ""]
+    history: Float[Array, " G"]
+    global_params: Float[Array, "6"]
+    global_score: Float[Array, ""]
+
+    @property
+    def success(self) -> Bool[Array, ""]:
+        return self.status == SUCCESS
+
+
+@eqx.filter_jit
+def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Estimate:
+    """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
+    glob = global_search(problem, config, key)
+    loc = local_refine(problem, config, glob.params)
+    p = loc.params
+    hard = hard_score(p, problem)
+    finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
+    status = jnp.where(
+        problem.status != 0,
+        DEGENERATE,
+        jnp.where(
+            ~finite,
+            NON_FINITE,
+            jnp.where(hard < config.min_score, LOW_SCORE, jnp.where(loc.converged, SUCCESS, NOT_CONVERGED)),
+        ),
+    )
+    p = jnp.where(finite, p, jnp.zeros_like(p))
+    R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
+    return Estimate(
+        params=p,
+        rotation=R,
+        translation=t,
+        frame=problem.frame,
+        hard=jnp.where(finite, hard, 0.0),
+        soft=soft_score(p, problem),
+        status=jnp.asarray(status, jnp.int32),
+        evaluations=jnp.asarray(glob.evaluations, jnp.int32),
+        local_steps=jnp.asarray(loc.steps, jnp.int32),
+        history=glob.history,
+        global_params=glob.params,
+        global_score=glob.score,
+    )
+
+
+def estimate(prev: Cloud, curr: Cloud, config: Config | None = None, *, key: PRNGKeyArray) -> Estimate:
+    """Displacement of the target between the previous and the current cloud.
+
+    **Arguments:**
+
+    - `prev`, `curr`: the two [`jaxpose.Cloud`][]s, camera frame, metres.
+    - `config`: a [`jaxpose.Config`][] (default `Config.accurate()`).
+    - `key`: PRNG key of the global search; the same key gives the same result.
+
+    **Returns:**
+
+    An [`Estimate`][]. Pure; works under `jax.jit` and `jax.vmap` over pairs and keys. At the
+    Python boundary an unusable pair raises ValueError (see `Problem.build`); under jit it
+    comes back with status `DEGENERATE` and never as a success.
+    """
+    config = Config.accurate() if config is None else config
+    problem = Problem.build(prev, curr, config)
+    return estimate_problem(problem, config, key)
+
+
+__all__ = ["STATUS_TEXT", "Estimate", "estimate", "estimate_problem"]

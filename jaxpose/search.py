@@ -1,0 +1,100 @@
+"""Global search (evosax CMA-ES) and local refine (optimistix) of a displacement p.
+
+Both work in normalised coordinates y = p / scale. The global stage uses the search box
+(scale = box half-widths, so the box is [−1, 1]⁶; candidates are clipped into it before
+scoring) and maximises the configured objective, scoring each generation with one
+[`score_batch`][] call inside `lax.scan`. The local stage uses scale = (1°, 1°, 1°, 1 cm,
+1 cm, 1 cm), which makes the soft objective's Hessian well conditioned for BFGS.
+evosax and optimistix minimise, so both see −f.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+from evosax.algorithms import CMA_ES
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from .batch import score_batch
+from .config import Config
+from .objective import soft_score
+from .problem import Problem
+
+LOCAL_SCALE = (math.radians(1.0),) * 3 + (0.01,) * 3
+"""Units of the local stage's coordinates: 1° and 1 cm."""
+
+
+class GlobalResult(eqx.Module):
+    params: Float[Array, "6"]  # best p found, radians and metres, frame n
+    score: Float[Array, ""]  # its objective value
+    history: Float[Array, " G"]  # best objective value of each generation
+    evaluations: Array
+
+
+def box_scale(config: Config) -> Float[Array, "6"]:
+    return jnp.array([config.angle_box] * 3 + [config.shift_box] * 3)
+
+
+def global_search(problem: Problem, config: Config, key: PRNGKeyArray, start=None) -> GlobalResult:
+    """CMA-ES (evosax) over the search box centred on `start` (default p = 0)."""
+    dtype = problem.d.dtype
+    scale = box_scale(config).astype(dtype)
+    centre = jnp.zeros(6, dtype) if start is None else jnp.asarray(start, dtype)
+    es = CMA_ES(population_size=config.population, solution=jnp.zeros(6, dtype))
+    params = es.default_params.replace(std_init=jnp.asarray(0.3, dtype))
+    key, k_init = jax.random.split(key)
+    state = es.init(k_init, jnp.zeros(6, dtype), params)
+
+    def to_p(y):
+        return centre + jnp.clip(y, -1.0, 1.0) * scale
+
+    def generation(carry, k):
+        state = carry
+        k_ask, k_tell = jax.random.split(k)
+        ys, state = es.ask(k_ask, state, params)
+        f = score_batch(jax.vmap(to_p)(ys), problem, config.global_objective)
+        state, _ = es.tell(k_tell, ys, -f, state, params)
+        return state, jnp.max(f)
+
+    state, history = jax.lax.scan(generation, state, jax.random.split(key, config.generations))
+    best = to_p(state.best_solution)
+    return GlobalResult(best, -state.best_fitness, history, jnp.asarray(config.population * config.generations))
+
+
+class LocalResult(eqx.Module):
+    params: Float[Array, "6"]
+    score: Float[Array, ""]  # soft objective at params
+    converged: Array
+    steps: Array
+
+
+def local_refine(problem: Problem, config: Config, start: Float[Array, "6"]) -> LocalResult:
+    """Maximise the soft objective from `start` with optimistix (BFGS or Nelder–Mead)."""
+    dtype = problem.d.dtype
+    start = jnp.asarray(start, dtype)
+    if config.local == "none":
+        return LocalResult(start, soft_score(start, problem), jnp.asarray(True), jnp.asarray(0))
+    scale = jnp.asarray(LOCAL_SCALE, dtype)
+    if config.local == "bfgs":
+        solver = optx.BFGS(rtol=1e-5, atol=1e-5)  # units of 1° and 1 cm
+    else:
+        solver = optx.NelderMead(rtol=1e-5, atol=1e-5)
+
+    def loss(y, pb):
+        return -soft_score(y * scale, pb)
+
+    sol = optx.minimise(loss, solver, start / scale, problem, max_steps=config.local_steps, throw=False)
+    p = sol.value * scale
+    f = soft_score(p, problem)
+    f0 = soft_score(start, problem)
+    better = jnp.isfinite(f) & (f >= f0)  # never return a worse point than the start
+    return LocalResult(
+        jnp.where(better, p, start),
+        jnp.where(better, f, f0),
+        sol.result == optx.RESULTS.successful,
+        sol.stats["num_steps"],
+    )

@@ -1,0 +1,75 @@
+"""estimate: recovery, determinism, batching and honest failure (fast config, one compile)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+from conftest import T_PAPER, paper_rotation
+
+import jaxpose as jp
+from jaxpose.estimate import DEGENERATE, LOW_SCORE, NOT_CONVERGED, SUCCESS
+
+CONFIG = jp.Config.fast(max_points=5120)  # fixed capacity: every test shares one compile
+
+
+def errors(est, variant):
+    truth = jp.true_displacement(est.frame, paper_rotation("previous"), T_PAPER, paper_rotation(variant), T_PAPER)
+    rot = float(jp.rotation_angle(jp.rotation(*est.params[:3]), jp.rotation(*truth[:3])))
+    return np.degrees(rot), 100 * float(jnp.linalg.norm(est.params[3:] - truth[3:]))
+
+
+@pytest.fixture(scope="module")
+def n5_estimate(paper_clouds):
+    return jp.estimate(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
+
+
+def test_recovers_the_paper_variant2_displacement(n5_estimate):
+    est = n5_estimate
+    assert int(est.status) in (SUCCESS, NOT_CONVERGED)
+    rot_deg, trans_cm = errors(est, "variant2")
+    assert rot_deg < 0.5 and trans_cm < 0.5, (rot_deg, trans_cm)
+    assert float(est.hard) > 0.85
+    # Camera-frame motion consistent with the displacement in frame n.
+    R_true = paper_rotation("variant2") @ paper_rotation("previous").T
+    assert np.degrees(float(jp.rotation_angle(est.rotation, R_true))) < 0.5
+    # CMA-ES history is recorded and the refine never makes things worse.
+    assert est.history.shape == (CONFIG.generations,)
+    assert float(est.soft) >= float(est.global_score) - 1e-12 or CONFIG.global_objective == "hard"
+
+
+def test_same_key_gives_identical_result(paper_clouds, n5_estimate):
+    again = jp.estimate(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
+    for a, b in zip(jax.tree.leaves(n5_estimate), jax.tree.leaves(again), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_vmap_over_pairs_equals_a_loop(paper_clouds):
+    prevs = jax.tree.map(lambda *x: jnp.stack(x), *[paper_clouds["n5", "previous"]] * 2)
+    currs = jax.tree.map(lambda *x: jnp.stack(x), paper_clouds["n5", "variant1"], paper_clouds["n5", "variant2"])
+    keys = jax.random.split(jax.random.key(5), 2)
+    batch = jax.vmap(lambda a, b, k: jp.estimate(a, b, CONFIG, key=k))(prevs, currs, keys)
+    for i, variant in enumerate(("variant1", "variant2")):
+        one = jp.estimate(paper_clouds["n5", "previous"], paper_clouds["n5", variant], CONFIG, key=keys[i])
+        np.testing.assert_allclose(np.asarray(batch.params[i]), np.asarray(one.params), atol=1e-9)
+        assert int(batch.status[i]) == int(one.status)
+
+
+def test_a_different_target_is_not_reported_as_success(camera, paper_clouds):
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.7)
+    sphere = jp.simulate(camera, jp.targets.Mesh.create(m.vertices, m.faces), paper_rotation("previous"), T_PAPER)
+    est = jp.estimate(paper_clouds["n5", "previous"], sphere, CONFIG, key=jax.random.key(0))
+    assert int(est.status) == LOW_SCORE and not bool(est.success)
+
+
+def test_degenerate_pair_under_jit_is_flagged_not_success(paper_clouds):
+    flat = jp.Cloud.from_points(np.c_[np.random.default_rng(0).normal(size=(5120, 2)), np.zeros(5120)])
+    est = jax.jit(lambda a, b, k: jp.estimate(a, b, CONFIG, key=k))(flat, flat, jax.random.key(0))
+    assert int(est.status) == DEGENERATE and not bool(est.success)
+    assert np.all(np.isfinite(np.asarray(est.params)))
+
+
+def test_degenerate_pair_raises_at_the_boundary(paper_clouds):
+    flat = jp.Cloud.from_points(np.c_[np.random.default_rng(0).normal(size=(50, 2)), np.zeros(50)])
+    with pytest.raises(ValueError, match="previous cloud"):
+        jp.estimate(flat, paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
