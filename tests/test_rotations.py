@@ -4,6 +4,7 @@ import jaxlie
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from reference import printed_rotation  # the matrix as printed in the paper, typed element by element
 
 import jaxpose as jp
 
@@ -11,23 +12,11 @@ angle = st.floats(-np.pi, np.pi)
 inner = st.floats(-np.pi / 2 + 1e-3, np.pi / 2 - 1e-3)
 
 
-def printed_matrix(t, f, s):
-    """The matrix exactly as printed in the paper (METHOD.md §4), typed element by element."""
-    st_, ct, sf, cf, ss, cs = np.sin(t), np.cos(t), np.sin(f), np.cos(f), np.sin(s), np.cos(s)
-    return np.array(
-        [
-            [st_ * sf * ss + ct * cs, st_ * sf * cs - ct * ss, st_ * cf],
-            [cf * ss, cf * cs, -sf],
-            [ct * sf * ss - st_ * cs, ct * sf * cs + st_ * ss, ct * cf],
-        ]
-    )
-
-
 @settings(max_examples=50, deadline=None)
 @given(angle, angle, angle)
 def test_rotation_is_the_printed_matrix_and_ry_rx_rz(t, f, s):
     G = np.asarray(jp.rotation(t, f, s))
-    np.testing.assert_allclose(G, printed_matrix(t, f, s), atol=1e-14)
+    np.testing.assert_allclose(G, printed_rotation(t, f, s), atol=1e-14)
     lie = jaxlie.SO3.from_y_radians(t) @ jaxlie.SO3.from_x_radians(f) @ jaxlie.SO3.from_z_radians(s)
     np.testing.assert_allclose(G, np.asarray(lie.as_matrix()), atol=1e-12)
     np.testing.assert_allclose(G @ G.T, np.eye(3), atol=1e-12)
