@@ -125,6 +125,13 @@ class Problem(eqx.Module):
         raise). Under jit the same conditions set bits of `status`.
         """
         config = Config() if config is None else config
+        if is_concrete(prev, curr):
+            for name, cloud in (("previous cloud", prev), ("current cloud", curr)):
+                pts, valid = np.asarray(cloud.points), np.asarray(cloud.valid)
+                if pts.ndim != 2 or pts.shape[1] != 3 or valid.shape != pts.shape[:1]:
+                    raise ValueError(f"{name}: expected points (N, 3) and valid (N,), got {pts.shape}, {valid.shape}.")
+                if not np.all(np.isfinite(pts[valid])):
+                    raise ValueError(f"{name}: valid points contain NaN or inf; mask them out (valid=False).")
         if config.max_points is None:
             if is_concrete(curr):
                 n_valid = int(jnp.sum(curr.valid))

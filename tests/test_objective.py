@@ -201,3 +201,12 @@ def test_soft_maximiser_is_closer_to_truth_than_hard(paper_clouds, variant):
 
     assert float(jp.soft_score(p_soft, problem)) >= float(jp.soft_score(truth, problem))
     assert error(p_soft) < error(p_hard)
+
+
+def test_non_finite_or_misshapen_clouds_raise(paper_clouds):
+    good = paper_clouds["n5", "variant2"]
+    bad_points = good.points.at[100].set(jnp.nan)
+    with pytest.raises(ValueError, match="NaN"):
+        jp.Problem.build(jp.Cloud(bad_points, good.valid.at[100].set(True)), good)
+    with pytest.raises(ValueError, match="current cloud"):
+        jp.Problem.build(good, jp.Cloud(good.points[:, :2], good.valid))
