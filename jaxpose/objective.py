@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .problem import NEIGHBOUR_OFFSETS, NEIGHBOUR_WEIGHTS, Problem
+from .problem import NEIGHBOUR_OFFSETS, NEIGHBOUR_WEIGHTS, Problem, round_half_up
 from .rotations import rotation
 
 
@@ -49,10 +49,6 @@ def _forward(occupancy: Float[Array, " F"], problem: Problem) -> Float[Array, " 
     return _ratio(num, problem.kr_sum)
 
 
-def _round_half_up(x):
-    return jnp.floor(x + 0.5).astype(jnp.int32)
-
-
 def hard_score(p: Float[Array, "6"], problem: Problem) -> Float[Array, ""]:
     """The paper's objective f(p) with hard selection and hard cells (the reference).
 
@@ -67,7 +63,7 @@ def hard_score(p: Float[Array, "6"], problem: Problem) -> Float[Array, ""]:
     flats, bwd = [], []
     for i in range(problem.num_planes):
         h, a, b = problem.plane_coords(q, i)
-        a, b = _round_half_up(a), _round_half_up(b)
+        a, b = round_half_up(a), round_half_up(b)
         inside = problem.curr_valid & (jnp.abs(h) <= problem.d) & problem.in_grid(i, a, b)
         flat = problem.flat_index(i, a, b, inside)
         flats.append(flat)

@@ -174,8 +174,9 @@ def neighbourhood_max(occupancy: Float[Array, "... C2 C2"]) -> Float[Array, "...
     return out
 
 
-def _round_half_up(x):
-    return jnp.floor(x + 0.5)
+def round_half_up(x) -> Array:
+    """round(x) with halves rounded up, as int32: the cell-index rule of the grids."""
+    return jnp.floor(x + 0.5).astype(jnp.int32)
 
 
 def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
@@ -196,12 +197,12 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
         any_sel = jnp.any(sel)
         lo_i = [jnp.where(any_sel, jnp.min(jnp.where(sel, c, jnp.inf)), 0.0) for c in uv]
         hi_i = [jnp.where(any_sel, jnp.max(jnp.where(sel, c, -jnp.inf)), 0.0) for c in uv]
-        m = [_round_half_up((h_ - l_) / d).astype(jnp.int32) for l_, h_ in zip(lo_i, hi_i, strict=True)]
-        e = [_round_half_up(config.extension * mk).astype(jnp.int32) for mk in m]
+        m = [round_half_up((h_ - l_) / d) for l_, h_ in zip(lo_i, hi_i, strict=True)]
+        e = [round_half_up(config.extension * mk) for mk in m]
         n = [mk + 2 * ek + 1 for mk, ek in zip(m, e, strict=True)]
         status = status | jnp.where((n[0] > C) | (n[1] > C), PROBLEM_GRID_OVERFLOW, 0)
         n = [jnp.minimum(nk, C) for nk in n]
-        idx = [(_round_half_up((c - l_) / d) + ek).astype(jnp.int32) for c, l_, ek in zip(uv, lo_i, e, strict=True)]
+        idx = [round_half_up((c - l_) / d) + ek for c, l_, ek in zip(uv, lo_i, e, strict=True)]
         inside = sel & (idx[0] < n[0]) & (idx[1] < n[1])
         counts = (
             jnp.zeros((C, C), dtype)
@@ -266,12 +267,3 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
         planes=planes,
         grid_cells=C,
     )
-
-
-def pattern_summary(problem: Problem) -> dict[str, np.ndarray]:
-    """Selected points and filled cells per plane of the previous cloud (numpy, for reports)."""
-    return {
-        "selected": np.asarray(problem.prev_selected),
-        "filled": np.asarray(problem.prev_filled),
-        "grid": np.asarray(problem.size),
-    }
