@@ -7,8 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._checks import as_float_array
-
 
 class Cloud(eqx.Module):
     """A point cloud in the camera frame c (metres).
@@ -35,19 +33,15 @@ class Cloud(eqx.Module):
         dtype and on non-finite valid points.
         """
         p = np.asarray(points)
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise ValueError(f"points: expected shape (N, 3), got {p.shape}.")
-        if not (np.issubdtype(p.dtype, np.floating) or np.issubdtype(p.dtype, np.integer)):
-            raise ValueError(f"points: expected real numbers, got dtype {p.dtype}.")
-        if valid is None:
-            v = np.ones(p.shape[0], bool)
-        else:
-            v = np.asarray(valid)
-            if v.shape != (p.shape[0],) or v.dtype != np.bool_:
-                raise ValueError(f"valid: expected a boolean mask of shape ({p.shape[0]},), got {v.dtype} {v.shape}.")
+        v = np.ones(p.shape[:1], bool) if valid is None else np.asarray(valid)
+        _check_arrays(p, v, "points")
         p = np.where(v[:, None], p, 0.0)
-        as_float_array(p, "points")  # finite check on the valid rows
         return cls(jnp.asarray(p, jnp.result_type(float)), jnp.asarray(v))
+
+    def check(self, name: str = "cloud") -> None:
+        """Raise a ValueError naming `name` unless points are `(N, 3)` reals, `valid` an `(N,)`
+        boolean mask and every valid point finite (outside jit only)."""
+        _check_arrays(np.asarray(self.points), np.asarray(self.valid), name)
 
     @property
     def num_valid(self) -> Array:
@@ -57,3 +51,16 @@ class Cloud(eqx.Module):
     def compact(self) -> np.ndarray:
         """The valid points as a plain `(n, 3)` numpy array (outside jit only)."""
         return np.asarray(self.points)[np.asarray(self.valid)]
+
+
+def _check_arrays(points: np.ndarray, valid: np.ndarray, name: str) -> None:
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{name}: expected points of shape (N, 3), got {points.shape}.")
+    if not (np.issubdtype(points.dtype, np.floating) or np.issubdtype(points.dtype, np.integer)):
+        raise ValueError(f"{name}: expected real numbers, got dtype {points.dtype}.")
+    if valid.shape != points.shape[:1] or valid.dtype != np.bool_:
+        raise ValueError(
+            f"{name}: expected a boolean mask of shape ({points.shape[0]},), got {valid.dtype} {valid.shape}."
+        )
+    if not np.all(np.isfinite(points[valid])):
+        raise ValueError(f"{name}: valid points contain NaN or inf; mask them out (valid=False).")

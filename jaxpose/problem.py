@@ -20,7 +20,6 @@ import math
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._checks import is_concrete
@@ -126,12 +125,8 @@ class Problem(eqx.Module):
         """
         config = Config() if config is None else config
         if is_concrete(prev, curr):
-            for name, cloud in (("previous cloud", prev), ("current cloud", curr)):
-                pts, valid = np.asarray(cloud.points), np.asarray(cloud.valid)
-                if pts.ndim != 2 or pts.shape[1] != 3 or valid.shape != pts.shape[:1]:
-                    raise ValueError(f"{name}: expected points (N, 3) and valid (N,), got {pts.shape}, {valid.shape}.")
-                if not np.all(np.isfinite(pts[valid])):
-                    raise ValueError(f"{name}: valid points contain NaN or inf; mask them out (valid=False).")
+            prev.check("previous cloud")
+            curr.check("current cloud")
         if config.max_points is None:
             if is_concrete(curr):
                 n_valid = int(jnp.sum(curr.valid))
