@@ -11,18 +11,17 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 import jaxpose as jp
+from jaxpose.report import PAPER_T, paper_pose
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
-DEG = np.pi / 180
-PAPER_POSES = {"previous": (23.5, 23.5, 1.0), "variant1": (24.5, 24.5, 2.0), "variant2": (33.5, 33.5, 11.0)}
-T_PAPER = jnp.array([0.0, 0.0, 5.5])
+T_PAPER = jnp.asarray(PAPER_T)
 
 
 def paper_rotation(pose: str):
-    return jp.rotation(*(a * DEG for a in PAPER_POSES[pose]))
+    """Target attitude of a paper pose: "previous", "variant 1" or "variant 2"."""
+    return paper_pose(pose)[0]
 
 
 def paper_cloud(shape: str, pose: str, camera=None) -> jp.Cloud:

@@ -22,7 +22,7 @@ def main(repeats: int = 5, batch: int = 8):
         rows = []
         for shape in ("n1", "n5"):
             prev = paper_cloud(shape, "previous")
-            for variant in ("variant1", "variant2"):
+            for variant in ("variant 1", "variant 2"):
                 problem = jp.Problem.build(prev, paper_cloud(shape, variant), config)
                 res = time_call(estimate_problem, problem, config, jax.random.key(0), repeats=repeats)
                 est = estimate_problem(problem, config, jax.random.key(0))
@@ -47,7 +47,7 @@ def main(repeats: int = 5, batch: int = 8):
                     f"err {np.round(err, 3)} {rows[-1]['status']}"
                 )
         # Throughput of a vmapped batch of pairs.
-        prob = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant2"), config)
+        prob = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant 2"), config)
         probs = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *jnp.shape(x))), prob)
         fn = jax.jit(jax.vmap(lambda pb, k, c=config: estimate_problem(pb, c, k)))
         keys = jax.random.split(jax.random.key(1), batch)

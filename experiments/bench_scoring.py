@@ -16,7 +16,7 @@ from jaxpose.batch import score_batch
 
 
 def main(batches=(1, 16, 256, 4096), repeats: int = 5):
-    problem = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant2"))
+    problem = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant 2"))
     rows = []
     for objective in ("hard", "soft"):
         for mode in ("score_batch", "vmap"):

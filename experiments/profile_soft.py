@@ -37,7 +37,7 @@ def soft_parts(p, problem, scatter=True, gather=True):
 
 
 def main(B: int = 4096):
-    problem = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant2"))
+    problem = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant 2"))
     ps = jax.random.uniform(jax.random.key(0), (B, 6), minval=-0.1, maxval=0.1)
     variants = {
         "full soft_score": lambda p: obj.soft_score(p, problem),
