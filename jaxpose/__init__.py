@@ -1,7 +1,7 @@
 """jaxpose: change of pose of an uncooperative, unknown-shape space target from two lidar
 point clouds, by plane-intersection patterns (METHOD.md), in JAX.
 
-Data flow: `simulate` → `Cloud` → `plane_frame` → `Problem` (patterns, grids) →
+Data flow: `simulate` (or `load_cloud`) → `Cloud` → `plane_frame` → `Problem` (patterns, grids) →
 `hard_score` / `soft_score` → `estimate`.
 """
 
@@ -11,6 +11,7 @@ from .cloud import Cloud
 from .config import Config
 from .estimate import Estimate, estimate
 from .frame import PlaneFrame, plane_frame
+from .io import load_cloud, save_cloud
 from .objective import hard_score, soft_score
 from .poses import (
     displacement_from_motion,
@@ -35,6 +36,8 @@ __all__ = [
     "angles",
     "displacement_from_motion",
     "estimate",
+    "load_cloud",
+    "save_cloud",
     "motion_from_displacement",
     "relative_motion",
     "rotation",
