@@ -44,6 +44,14 @@ class Cloud(eqx.Module):
         _check_arrays(np.asarray(self.points), np.asarray(self.valid), name)
 
     @property
+    def masked_points(self) -> Float[Array, "N 3"]:
+        """`points` as floats with the invalid rows zeroed, so NaN or inf that a sensor left
+        in missing rows can never leak into sums (works under jit)."""
+        floating = jnp.issubdtype(self.points.dtype, jnp.floating)
+        dtype = self.points.dtype if floating else jnp.result_type(float)
+        return jnp.where(self.valid[:, None], self.points, 0).astype(dtype)
+
+    @property
     def num_valid(self) -> Array:
         """Number of valid points (an array, so it works under jit)."""
         return jnp.sum(self.valid)

@@ -45,6 +45,11 @@ class Config(eqx.Module):
     - `local`: "bfgs", "nelder_mead" or "none" — the optimistix refine on the soft objective
       (static); `local_steps` its step limit (static).
     - `min_score`: a result whose hard score is below this is reported as low-score.
+
+    **Input checks:**
+
+    - `max_range`: clouds with a point farther than this from the camera (metres) are
+      refused at the Python boundary (wrong units or garbage, not lidar returns).
     """
 
     d: float = 0.026
@@ -54,6 +59,7 @@ class Config(eqx.Module):
     angle_box: float = math.radians(20.0)
     shift_box: float = 0.10
     min_score: float = 0.5
+    max_range: float = 1000.0
     slices: int = eqx.field(static=True, default=1)
     grid_cells: int = eqx.field(static=True, default=128)
     max_points: int | None = eqx.field(static=True, default=None)

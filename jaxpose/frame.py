@@ -72,10 +72,11 @@ def plane_frame(cloud: Cloud) -> PlaneFrame:
     Pure and jittable. Problems are reported in `status`, never by NaN: with no valid points
     the origin is zero and the axes are the identity.
     """
-    w = cloud.valid.astype(cloud.points.dtype)
+    points = cloud.masked_points
+    w = cloud.valid.astype(points.dtype)
     n = jnp.sum(w)
-    origin = jnp.sum(cloud.points * w[:, None], axis=0) / jnp.maximum(n, 1.0)
-    X = (cloud.points - origin) * w[:, None]
+    origin = jnp.sum(points * w[:, None], axis=0) / jnp.maximum(n, 1.0)
+    X = (points - origin) * w[:, None]
     C = X.T @ X
     J = jnp.trace(C) * jnp.eye(3, dtype=C.dtype) - C
     evals, evecs = jnp.linalg.eigh(J)  # ascending

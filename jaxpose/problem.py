@@ -20,6 +20,7 @@ import math
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._checks import is_concrete
@@ -127,6 +128,7 @@ class Problem(eqx.Module):
         if is_concrete(prev, curr):
             prev.check("previous cloud")
             curr.check("current cloud")
+            _check_range(prev, curr, config)
         if config.max_points is None:
             if is_concrete(curr):
                 n_valid = int(jnp.sum(curr.valid))
@@ -138,6 +140,27 @@ class Problem(eqx.Module):
         if is_concrete(problem):
             raise_for_status(problem)
         return problem
+
+
+def _check_range(prev: Cloud, curr: Cloud, config: Config) -> None:
+    """Refuse clouds beyond `config.max_range`, or so far out that the float type cannot
+    resolve d/10 there (both mean the data are not lidar returns in metres)."""
+    d = config.d
+    for name, cloud in (("previous cloud", prev), ("current cloud", curr)):
+        pts = np.abs(np.asarray(cloud.masked_points))
+        far = float(pts.max()) if pts.size else 0.0
+        if far > config.max_range:
+            raise ValueError(
+                f"{name}: points reach {far:.3g} m from the camera, beyond Config.max_range = "
+                f"{config.max_range:g} m. Check the units (metres) or raise max_range."
+            )
+        resolution = far * float(np.finfo(pts.dtype).eps)
+        if resolution > d / 10:
+            raise ValueError(
+                f"{name}: points reach {far:.3g} m from the camera, out of range for {pts.dtype} "
+                f"(resolution {resolution:.2g} m there, coarser than d/10 = {d / 10:.2g} m). "
+                "Recentre the clouds near the camera origin or enable float64 (jax_enable_x64)."
+            )
 
 
 def raise_for_status(problem: Problem) -> None:
@@ -175,6 +198,8 @@ def round_half_up(x) -> Array:
 
 
 def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
+    prev = Cloud(prev.masked_points, prev.valid)
+    curr = Cloud(curr.masked_points, curr.valid)
     dtype = prev.points.dtype
     frame = plane_frame(prev)
     d = jnp.asarray(config.d, dtype)

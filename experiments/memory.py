@@ -1,0 +1,48 @@
+"""Peak resident memory of `estimate` (issue 6): one full 204 × 204 pair and a vmapped batch
+of 64 pairs, default config, each in a fresh process (ru_maxrss after the run, and the same
+process's peak before the estimate, i.e. JAX + the clouds, as a baseline).
+
+    uv run python experiments/memory.py  →  results/memory.json
+"""
+
+import json
+import subprocess
+import sys
+
+from _common import write_json
+
+CHILD = r"""
+import json, resource, sys
+import jax, jax.numpy as jnp
+sys.path.insert(0, "experiments")
+from _common import paper_cloud
+import jaxpose as jp
+from jaxpose.estimate import estimate_problem
+batch = int(sys.argv[1])
+config = jp.Config.accurate(max_points=5120)
+problem = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant 2"), config)
+jax.block_until_ready(problem.r_field)
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+if batch == 1:
+    est = estimate_problem(problem, config, jax.random.key(0))
+else:
+    probs = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *jnp.shape(x))), problem)
+    fn = jax.jit(jax.vmap(lambda pb, k: estimate_problem(pb, config, k)))
+    est = fn(probs, jax.random.split(jax.random.key(0), batch))
+jax.block_until_ready(est.params)
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"batch": batch, "baseline_mib": base / 1024, "peak_mib": peak / 1024}))
+"""
+
+
+def main():
+    rows = []
+    for batch in (1, 64):
+        out = subprocess.run([sys.executable, "-c", CHILD, str(batch)], capture_output=True, text=True, check=True)
+        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+        print(rows[-1])
+    write_json("memory.json", {"config": "accurate", "pair": "N5 previous → variant 2 (204 × 204)", "rows": rows})
+
+
+if __name__ == "__main__":
+    main()
