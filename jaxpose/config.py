@@ -1,8 +1,8 @@
 """Configuration of the method: a pytree, with the fields that fix array shapes static.
 
 Lengths in metres, angles in radians. Presets: [`Config.paper`][] (the paper's setting:
-3 planes, hard objective, ±20°/±0.10 m box), [`Config.accurate`][] (default) and
-[`Config.fast`][] (tests and real-time use).
+3 planes, hard objective, ±20°/±0.10 m box), [`Config.accurate`][] (default),
+[`Config.wide`][] (capture, ±90°) and [`Config.fast`][] (tests and real-time use).
 """
 
 from __future__ import annotations
@@ -43,7 +43,11 @@ class Config(eqx.Module):
     - `global_objective`: "hard" (the paper's) or "soft" — what CMA-ES maximises (static).
     - `population`, `generations`: CMA-ES size (static).
     - `local`: "bfgs", "nelder_mead" or "none" — the optimistix refine on the soft objective
-      (static); `local_steps` its step limit (static).
+      (static); `local_steps` its step limit (static); `local_tol` its rtol = atol, in the
+      refine's units of 1° and 1 cm (static: it is part of the solver). 3e-4 stops BFGS
+      within about 0.006° of a resting point; at 1e-5 the kinks of the neighbourhood max
+      kept it zig-zagging to the step limit on half the paper's pairs with the same error
+      (`experiments/local_tolerance.py`).
     - `min_score`: a result whose hard score is below this is reported as low-score.
 
     **Input checks:**
@@ -69,6 +73,7 @@ class Config(eqx.Module):
     generations: int = eqx.field(static=True, default=40)
     local: Literal["bfgs", "nelder_mead", "none"] = eqx.field(static=True, default="bfgs")
     local_steps: int = eqx.field(static=True, default=100)
+    local_tol: float = eqx.field(static=True, default=3e-4)
 
     def __check_init__(self):
         if self.slices < 1 or self.grid_cells < 3 or (self.max_points or 1) < 1 or self.max_cells < 1:
@@ -96,6 +101,13 @@ class Config(eqx.Module):
     def accurate(cls, **kw) -> Config:
         """The default: CMA-ES on the soft objective, then BFGS on the soft objective."""
         return cls(**kw)
+
+    @classmethod
+    def wide(cls, **kw) -> Config:
+        """Capture mode: a ±90° / ±0.30 m box and a larger CMA-ES, for a first estimate with no
+        prior (issue 4's capture test; see `experiments/capture.py`)."""
+        box = {"angle_box": math.radians(90.0), "shift_box": 0.30, "population": 64, "generations": 60}
+        return cls(**{**box, **kw})
 
     @classmethod
     def fast(cls, **kw) -> Config:

@@ -80,9 +80,9 @@ def local_refine(problem: Problem, config: Config, start: Float[Array, "6"]) -> 
         return LocalResult(start, soft_score(start, problem), jnp.asarray(True), jnp.asarray(0))
     scale = jnp.asarray(LOCAL_SCALE, dtype)
     if config.local == "bfgs":
-        solver = optx.BFGS(rtol=1e-5, atol=1e-5)  # units of 1° and 1 cm
+        solver = optx.BFGS(rtol=config.local_tol, atol=config.local_tol)  # units of 1° and 1 cm
     else:
-        solver = optx.NelderMead(rtol=1e-5, atol=1e-5)
+        solver = optx.NelderMead(rtol=config.local_tol, atol=config.local_tol)
 
     def loss(y, pb):
         return -soft_score(y * scale, pb)
