@@ -30,7 +30,7 @@ def random_pair(key):
 
 
 def main(pairs: int = 100, preset: str = "wide"):
-    config = getattr(jp.Config, preset)(max_points=5120)
+    config = getattr(jp.Config, preset)(max_points=10240, max_cells=1024, grid_cells=160)
     camera, target = jp.Camera.camcube2(), jp.targets.n5()
     rows, t0 = [], time.perf_counter()
     for i in range(pairs):
