@@ -82,6 +82,23 @@ class Config(eqx.Module):
             raise ValueError(f"global_objective must be 'hard' or 'soft', got {self.global_objective!r}.")
         if self.local not in ("bfgs", "nelder_mead", "none"):
             raise ValueError(f"local must be 'bfgs', 'nelder_mead' or 'none', got {self.local!r}.")
+        if self.population < 2 or self.generations < 1 or self.local_steps < 0 or not self.local_tol > 0:
+            raise ValueError("population ≥ 2, generations ≥ 1, local_steps ≥ 0 and local_tol > 0 are required.")
+        ranges = {
+            "d": (self.d, 0.0, math.inf),
+            "bin_width": (self.bin_width, 0.0, 1.0),
+            "select_width": (self.select_width, 0.0, math.inf),
+            "angle_box": (self.angle_box, 0.0, math.pi),
+            "shift_box": (self.shift_box, 0.0, math.inf),
+            "max_range": (self.max_range, 0.0, math.inf),
+        }
+        for name, (value, lo, hi) in ranges.items():
+            if isinstance(value, int | float) and not lo < value <= hi:
+                raise ValueError(f"Config.{name} must be in ({lo:g}, {hi:g}], got {value!r} (metres/radians).")
+        if isinstance(self.extension, int | float) and not self.extension >= 0:
+            raise ValueError(f"Config.extension must be ≥ 0, got {self.extension!r}.")
+        if isinstance(self.min_score, int | float) and not 0 <= self.min_score <= 1:
+            raise ValueError(f"Config.min_score must be in [0, 1], got {self.min_score!r}.")
 
     @property
     def num_planes(self) -> int:

@@ -137,3 +137,25 @@ def test_far_or_huge_clouds_name_the_problem(scale, offset, dtype, match):
     cloud = jp.Cloud(jnp.asarray(pts, dtype), jnp.ones(N, bool))
     with pytest.raises(ValueError, match=match):
         jp.Problem.build(cloud, cloud, jp.Config.fast(max_points=256, max_range=1e5 if match == "resolution" else 1e3))
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("d", 0.0),
+        ("d", float("nan")),
+        ("bin_width", 1.5),
+        ("select_width", -0.1),
+        ("angle_box", 4.0),  # radians, not degrees
+        ("shift_box", 0.0),
+        ("min_score", 1.2),
+        ("extension", -1.0),
+        ("max_range", -1.0),
+        ("population", 1),
+        ("local_tol", 0.0),
+        ("local", "newton"),
+    ],
+)
+def test_config_rejects_out_of_range_settings(field, value):
+    with pytest.raises(ValueError, match=field if field != "local" else "local must"):
+        jp.Config(**{field: value})
