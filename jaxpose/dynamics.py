@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import diffrax
 import jax.numpy as jnp
+import jaxlie
 from jaxtyping import Array, Float
 
 
@@ -45,29 +46,9 @@ def cw_closed_form(t, state0: Float[Array, "6"], omega) -> Float[Array, "6"]:
     )
 
 
-def _quat_mul(a, b):
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return jnp.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ]
-    )
-
-
 def quat_to_matrix(q: Float[Array, "4"]) -> Float[Array, "3 3"]:
-    """Rotation matrix of a unit quaternion (w, x, y, z): body → inertial."""
-    w, x, y, z = q / jnp.linalg.norm(q)
-    return jnp.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    """Rotation matrix of a quaternion (w, x, y, z), normalised first: body → inertial."""
+    return jaxlie.SO3(wxyz=q / jnp.linalg.norm(q)).as_matrix()
 
 
 def local_vertical(t, omega) -> Float[Array, "3"]:
@@ -84,7 +65,9 @@ def attitude_rhs(t, state: Float[Array, "7"], args) -> Float[Array, "7"]:
     e3 = quat_to_matrix(q).T @ local_vertical(t, omega0)  # local vertical in body axes
     torque = 3 * omega0**2 * jnp.cross(e3, J @ e3)
     w_dot = jnp.linalg.solve(J, torque - jnp.cross(w, J @ w))
-    q_dot = 0.5 * _quat_mul(q, jnp.concatenate([jnp.zeros(1, w.dtype), w]))
+    # jaxlie's SO3 product is the Hamilton product of the raw wxyz arrays, so it also serves
+    # the pure quaternion (0, ω) of the kinematics.
+    q_dot = 0.5 * (jaxlie.SO3(wxyz=q) @ jaxlie.SO3(wxyz=jnp.concatenate([jnp.zeros(1, w.dtype), w]))).wxyz
     return jnp.concatenate([q_dot, w_dot])
 
 
