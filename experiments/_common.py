@@ -6,6 +6,8 @@ import json
 import os
 import platform
 import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -56,6 +58,13 @@ def time_call(fn, *args, repeats: int = 20) -> dict:
         block(fn(*args))
         times.append(time.perf_counter() - t0)
     return {"compile_s": compile_s, "median_s": statistics.median(times), "repeats": repeats}
+
+
+def run_child(code: str, *args: str) -> dict:
+    """Run `code` in a fresh Python process (own JAX settings, own peak memory) and return
+    the JSON object on the last line it prints."""
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def write_json(name: str, payload: dict) -> Path:

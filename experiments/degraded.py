@@ -31,12 +31,18 @@ CONDITIONS = {
 }
 
 
+def target_position(condition: dict):
+    """Camera-frame position of the target (metres): the paper's, shifted sideways for the
+    truncated view."""
+    return T_PAPER + jnp.array([condition.get("shift", 0.0), 0.0, 0.0])
+
+
 def degraded_cloud(rotation, condition: dict, key) -> jp.Cloud:
     k_sim, k_pick, k_out = jax.random.split(key, 3)
     camera = dataclasses.replace(
         jp.Camera.camcube2(), noise_sigma=condition.get("noise", 0.0), dropout=condition.get("dropout", 0.0)
     )
-    t = T_PAPER + jnp.array([condition.get("shift", 0.0), 0.0, 0.0])
+    t = target_position(condition)
     cloud = jp.simulate(camera, jp.targets.n5(), rotation, t, key=k_sim)
     fraction = condition.get("outliers", 0.0)
     if fraction:
@@ -65,8 +71,8 @@ def main(trials: int = 10):
                     ok.append(False)
                     continue
                 est = estimate_problem(problem, config, k3)
-                t1 = T_PAPER + jnp.array([condition.get("shift", 0.0), 0.0, 0.0])
-                truth = jp.true_displacement(est.frame, R1, t1, R2, t1)
+                t = target_position(condition)
+                truth = jp.true_displacement(est.frame, R1, t, R2, t)
                 rot = float(np.degrees(jp.rotation_angle(jp.rotation(*est.params[:3]), jp.rotation(*truth[:3]))))
                 rot_err.append(rot)
                 trans_err.append(100 * float(jnp.linalg.norm(est.params[3:] - truth[3:])))

@@ -8,12 +8,9 @@ a warm cache sees).
     uv run python experiments/memory.py  →  results/memory.json
 """
 
-import json
-import subprocess
-import sys
 import tempfile
 
-from _common import write_json
+from _common import run_child, write_json
 
 CHILD = r"""
 import json, resource, sys
@@ -46,9 +43,7 @@ def main():
     for batch in (1, 64):
         with tempfile.TemporaryDirectory() as cache:
             for run in ("compiling", "warm cache"):
-                cmd = [sys.executable, "-c", CHILD, str(batch), cache]
-                out = subprocess.run(cmd, capture_output=True, text=True, check=True)
-                rows.append({"run": run, **json.loads(out.stdout.strip().splitlines()[-1])})
+                rows.append({"run": run, **run_child(CHILD, str(batch), cache)})
                 print(rows[-1])
     write_json("memory.json", {"config": "accurate", "pair": "N5 previous → variant 2 (204 × 204)", "rows": rows})
 

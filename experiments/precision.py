@@ -4,12 +4,8 @@ four pairs, once per precision in a fresh process; differences in frame n (degre
     uv run python experiments/precision.py  →  results/precision.json
 """
 
-import json
-import subprocess
-import sys
-
 import numpy as np
-from _common import write_json
+from _common import run_child, write_json
 
 CHILD = r"""
 import json, sys
@@ -31,13 +27,8 @@ print(json.dumps(out))
 """
 
 
-def run(bits: str) -> dict:
-    out = subprocess.run([sys.executable, "-c", CHILD, bits], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 def main():
-    r32, r64 = run("32"), run("64")
+    r32, r64 = run_child(CHILD, "32"), run_child(CHILD, "64")
     units = np.array([180 / np.pi] * 3 + [100] * 3)
     rows = []
     for pair in r32:
