@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxpose as jp
-from jaxpose.report import PAPER_T, paper_pose
+from jaxpose.scenarios import PAPER_T, paper_pose
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 T_PAPER = jnp.asarray(PAPER_T)

@@ -25,6 +25,14 @@ STATUS_TEXT = {
     DEGENERATE: "the problem is unusable (see Problem.status: frame, capacities, too few points)",
     NON_FINITE: "a non-finite value appeared",
 }
+STATUS_NAME = {
+    SUCCESS: "success",
+    NOT_CONVERGED: "not converged",
+    LOW_SCORE: "low score",
+    DEGENERATE: "degenerate",
+    NON_FINITE: "non-finite",
+}
+"""Short names of the status codes, for tables."""
 
 
 class Estimate(eqx.Module):
@@ -116,4 +124,4 @@ def estimate(prev: Cloud, curr: Cloud, config: Config | None = None, *, key: PRN
     return estimate_problem(problem, config, key)
 
 
-__all__ = ["STATUS_TEXT", "Estimate", "estimate", "estimate_problem"]
+__all__ = ["STATUS_NAME", "STATUS_TEXT", "Estimate", "estimate", "estimate_problem"]

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import jax.numpy as jnp
 import numpy as np
 
@@ -11,19 +9,12 @@ from .camera import Camera
 from .objective import hard_score, soft_score
 from .poses import true_displacement
 from .problem import Problem
-from .rotations import rotation
+from .scenarios import PAPER_POSES, paper_pair, paper_pose
 from .simulate import simulate
 from .targets import n1, n5
 
-PAPER_POSES = {"previous": (23.5, 23.5, 1.0), "variant 1": (24.5, 24.5, 2.0), "variant 2": (33.5, 33.5, 11.0)}
-"""Target attitudes (θt, φt, ψt) in degrees of the paper's test (METHOD.md §11.4); t = (0, 0, 5.5) m."""
-PAPER_T = (0.0, 0.0, 5.5)
 PAPER_CLOUD_SIZES = {("N5", "previous"): 4219, ("N5", "variant 2"): 4694}
 PAPER_N5_PATTERNS = {"selected": (273, 239, 85), "filled": (169, 116, 64), "f_zero": 0.17, "f_truth": 0.87}
-
-
-def paper_pose(name: str):
-    return rotation(*(math.radians(a) for a in PAPER_POSES[name])), jnp.asarray(PAPER_T)
 
 
 def cloud_statistics(camera: Camera | None = None) -> list[dict]:
@@ -50,10 +41,9 @@ def n5_patterns(camera: Camera | None = None) -> dict:
     """Selected points and filled cells per plane of the N5 previous cloud, and f (hard and
     soft) at zero displacement and at the truth, for the pair previous → variant 2."""
     camera = Camera.camcube2() if camera is None else camera
-    (R1, t1), (R2, t2) = paper_pose("previous"), paper_pose("variant 2")
-    prev, curr = simulate(camera, n5(), R1, t1), simulate(camera, n5(), R2, t2)
-    problem = Problem.build(prev, curr)
-    truth = true_displacement(problem.frame, R1, t1, R2, t2)
+    pair = paper_pair("N5", "variant 2", camera)
+    problem = Problem.build(pair.prev, pair.curr)
+    truth = true_displacement(problem.frame, pair.R1, pair.t1, pair.R2, pair.t2)
     zero = jnp.zeros(6)
     return {
         "selected": tuple(int(x) for x in problem.prev_selected),
