@@ -83,6 +83,94 @@ def reproduce(
     )
 
 
+PAIR_SETS = ("paper", "capture")
+
+
+@app.command()
+def compare(
+    pair_set: Annotated[
+        str, typer.Option("--set", help="paper (the four pairs) or capture (random, 5–45°).")
+    ] = "paper",
+    pairs: Annotated[int, typer.Option(help="Number of capture pairs.")] = 100,
+    preset: Annotated[str, typer.Option(help="jaxpose preset (default: accurate for paper, wide for capture).")] = "",
+    seed: Annotated[int, typer.Option(help="PRNG seed of jaxpose's search.")] = 0,
+    out: Annotated[Path, typer.Option(help="Folder for compare_<set>.{md,json}.")] = Path("results"),
+):
+    """jaxpose and the peers (small_gicp ICP / plane-ICP / GICP; Open3D ICPs, FGR, RANSAC when
+    installed: `pip install 'jaxpose[peers]'`) on the same pairs, errors and times in one table."""
+    import json
+
+    import numpy as np
+
+    from .bench import machine
+    from .comparison import markdown_summary, run_jaxpose, run_peer, summarise
+    from .peers import available_peers
+    from .rotations import rotation_angle
+    from .scenarios import capture_pairs, paper_pairs
+
+    if pair_set not in PAIR_SETS:
+        raise typer.BadParameter(f"unknown set {pair_set!r}; choose one of {', '.join(PAIR_SETS)}.")
+    _enable_compile_cache()
+    preset = preset or ("accurate" if pair_set == "paper" else "wide")
+    # Capacities: the paper's clouds fit the defaults; random attitudes need larger grids.
+    big = {"max_points": 10240, "max_cells": 1024, "grid_cells": 160}
+    config = _preset(preset)(**({"max_points": 5120} if pair_set == "paper" else big))
+    chosen = paper_pairs() if pair_set == "paper" else capture_pairs(pairs, seed=seed)
+    peers, missing = available_peers()
+    with _progress() as bar:
+        task = bar.add_task(f"jaxpose ({preset})", total=len(chosen))
+        repeats = 5 if pair_set == "paper" else 1
+        rows, compile_s = run_jaxpose(chosen, config, seed, lambda: bar.advance(task), repeats)
+        for name, align in peers.items():
+            task = bar.add_task(name, total=len(chosen))
+            rows += run_peer(name, align, chosen, progress=lambda t=task: bar.advance(t))
+    angles = {p.label: float(np.degrees(rotation_angle(p.motion[0], np.eye(3)))) for p in chosen}
+    bins = ((5, 15), (15, 25), (25, 35), (35, 45)) if pair_set == "capture" else None
+    summary = summarise(rows, angles, bins)
+    text = markdown_summary(summary, compile_s)
+    if missing:
+        text += "\n\nNot run here: " + "; ".join(f"{k} ({v})" for k, v in missing.items())
+    typer.echo(text)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"compare_{pair_set}.md").write_text(text + "\n")
+    payload = {"machine": machine(), "preset": preset, "summary": summary, "compile_s": compile_s, "rows": rows}
+    (out / f"compare_{pair_set}.json").write_text(json.dumps({**payload, "missing": missing}, indent=2))
+    typer.echo(f"wrote {out / f'compare_{pair_set}.md'} and .json")
+
+
+@app.command()
+def bench(
+    out: Annotated[Path, typer.Option(help="JSON file to write.")] = Path("results/bench.json"),
+    repeats: Annotated[int, typer.Option(help="Timed repeats after the first (compile) call.")] = 10,
+):
+    """Simulator time, scoring throughput, estimate time per pair and per vmapped batch, and the
+    compile times, on the paper's N5 pair → JSON (median of repeats, compile separately)."""
+    import json
+
+    from .bench import run_bench
+
+    with _progress() as bar:
+        task = bar.add_task("benchmarking (compiles included)", total=None)
+        result = run_bench(repeats=repeats)
+        bar.update(task, total=1, completed=1)
+    for name, r in result.items():
+        if isinstance(r, dict) and "median_s" in r:
+            rate = next((f"  {r[k]:.1f} {k}" for k in ("poses_per_s", "pairs_per_s") if k in r), "")
+            typer.echo(f"{name:28s} {1e3 * r['median_s']:9.2f} ms  (compile {r['compile_s']:.1f} s){rate}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2))
+    typer.echo(f"wrote {out}")
+
+
+def _preset(name: str):
+    from . import Config
+
+    presets = {"accurate": Config.accurate, "fast": Config.fast, "paper": Config.paper, "wide": Config.wide}
+    if name not in presets:
+        raise typer.BadParameter(f"unknown preset {name!r}; choose one of {', '.join(presets)}.")
+    return presets[name]
+
+
 def _enable_compile_cache() -> None:
     """Persist XLA compilations across CLI runs (the estimate compiles in seconds, runs in ms)."""
     import os
@@ -113,18 +201,15 @@ def estimate(
     import jax
     import numpy as np
 
-    from . import Config
     from . import estimate as run_estimate
     from .estimate import STATUS_TEXT
     from .io import load_cloud
     from .rotations import angles
 
-    presets = {"accurate": Config.accurate, "fast": Config.fast, "paper": Config.paper}
-    if preset not in presets:
-        raise typer.BadParameter(f"unknown preset {preset!r}; choose one of {', '.join(presets)}.")
+    config = _preset(preset)()
     _enable_compile_cache()
     try:
-        result = run_estimate(load_cloud(prev), load_cloud(curr), presets[preset](), key=jax.random.key(seed))
+        result = run_estimate(load_cloud(prev), load_cloud(curr), config, key=jax.random.key(seed))
     except (ValueError, FileNotFoundError) as err:
         typer.echo(f"error: {err}", err=True)
         raise typer.Exit(2) from err
