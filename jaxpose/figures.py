@@ -63,8 +63,7 @@ def plot_clouds(clouds: dict[str, Cloud], path: Path) -> None:
 
 def plot_selected(cloud: Cloud, problem: Problem, path: Path) -> None:
     """Fig. 5: the previous cloud in frame n, with the points within d of each plane coloured."""
-    pts = np.asarray(cloud.compact())
-    b = (pts - np.asarray(problem.frame.origin)) @ np.asarray(problem.frame.axes)  # frame n
+    b = np.asarray(problem.frame.to_frame(cloud.points))[np.asarray(cloud.valid)]  # frame n
     d = float(problem.d)
     fig = plt.figure(figsize=(11, 4))
     for i, (j, offset) in enumerate(problem.planes[:3]):

@@ -1,0 +1,50 @@
+"""`sweep` (Monte Carlo over one condition, batched through `estimate_sharded`) and `bench`."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import pytest
+from typer.testing import CliRunner
+
+import jaxpose as jp
+from jaxpose.bench import machine, time_call
+from jaxpose.cli import app
+from jaxpose.sweep import AXES, sweep_value
+
+CONFIG = jp.Config.fast(max_cells=1024, grid_cells=160)
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return sweep_value("noise", 1.0, 3, CONFIG)
+
+
+def test_sweep_value_counts_are_consistent(noisy):
+    assert noisy["trials"] == 3 and noisy["unusable"] == 0
+    assert 0 <= noisy["success"] <= noisy["found"] <= 3 and noisy["false_success"] <= 3 - noisy["found"]
+    assert len(noisy["rotation_errors_deg"]) == 3
+    # 10° about a random axis with 1 cm range noise: the base case works (degraded.py: 100 %).
+    assert noisy["found"] >= 2
+
+
+def test_sweep_value_is_reproducible(noisy):
+    assert sweep_value("noise", 1.0, 3, CONFIG) == noisy
+
+
+def test_sweep_command_writes_json_and_plot(tmp_path, monkeypatch):
+    monkeypatch.setitem(AXES, "dropout", ("pixel dropout probability", (0.0, 0.5)))
+    config = CONFIG
+    monkeypatch.setattr("jaxpose.cli._preset", lambda name: lambda **kw: config)
+    result = CliRunner().invoke(app, ["sweep", "--axes", "dropout", "--trials", "2", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "sweep_accurate.json").read_text())
+    assert [r["value"] for r in data["results"]["dropout"]] == [0.0, 0.5]
+    assert (tmp_path / "sweep_accurate.png").stat().st_size > 10_000
+    assert CliRunner().invoke(app, ["sweep", "--axes", "tilt"]).exit_code != 0
+
+
+def test_time_call_reports_compile_and_median():
+    res = time_call(jax.jit(lambda x: jnp.sin(x).sum()), jnp.ones(100), repeats=3)
+    assert res["repeats"] == 3 and res["compile_s"] > 0 and res["median_s"] > 0
+    assert machine()["backend"] == jax.default_backend()
