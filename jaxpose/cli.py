@@ -96,10 +96,20 @@ def sweep(
     preset: Annotated[str, typer.Option(help="Config preset: accurate, fast, wide or paper.")] = "accurate",
     seed: Annotated[int, typer.Option(help="PRNG seed of the pairs and the search.")] = 0,
     out: Annotated[Path, typer.Option(help="Folder for sweep_<preset>.{json,png}.")] = Path("results"),
+    distributed: Annotated[
+        bool, typer.Option(help="Join a multi-host run first (jax.distributed.initialize(); cluster from env).")
+    ] = False,
 ):
     """Monte Carlo error and success rate against rotation magnitude (0.5–60°), range noise σ
-    (0–2 cm), distance (1–7 m) and pixel dropout, one condition at a time, with plots."""
+    (0–2 cm), distance (1–7 m) and pixel dropout, one condition at a time, with plots. Each
+    value's trials run as one batch sharded over all devices (all hosts with --distributed;
+    process 0 writes the files)."""
     import json
+
+    import jax
+
+    if distributed:
+        jax.distributed.initialize()
 
     from .bench import machine
     from .sweep import AXES, BASE, plot_sweep, run_sweep
@@ -120,6 +130,8 @@ def sweep(
                 f"  {r['value']:6g}  found {r['found']}/{r['trials']}  success {r['success']}  "
                 f"false success {r['false_success']}  unusable {r['unusable']}  median rot. error {med:.3f}°"
             )
+    if jax.process_index() != 0:
+        return
     out.mkdir(parents=True, exist_ok=True)
     plot_sweep(results, out / f"sweep_{preset}.png", f"jaxpose {preset}, N5, {trials} trials per value, base {BASE}")
     payload = {"machine": machine(), "preset": preset, "trials": trials, "base": BASE, "results": results}

@@ -6,9 +6,13 @@ partitions the batch and each device runs its share. Results match one device to
 XLA vectorises a share of 2 differently from a batch of 8, and in float32 CMA-ES amplifies
 that rounding to ~1e-4 rad; in float64 the results agree to 1e-9 (tested). (`shard_map`
 with a `lax.map` per device would make them bit-identical, but optimistix's linear solves
-reject the manual-axis shardings inside it in this JAX/lineax version.) Across hosts, call
-`jax.distributed.initialize()` first and pass a mesh over `jax.devices()` (all hosts'
-devices); nothing here is host-specific.
+reject the manual-axis shardings inside it in this JAX/lineax version.)
+
+Across hosts: call `jax.distributed.initialize()` first in every process and give every
+process the same batch (e.g. the same seed); the default mesh spans `jax.devices()` (all
+processes' devices), each process places only its own share
+(`jax.make_array_from_callback`), and the results are gathered back to every process
+(`multihost_utils.process_allgather`). Tested with two CPU processes (gloo collectives).
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import AxisType, Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 from jaxtyping import PRNGKeyArray
@@ -32,7 +38,8 @@ def batch_mesh(devices=None) -> Mesh:
 
 
 @eqx.filter_jit
-def _estimate_batch(problems: Problem, config: Config, keys: PRNGKeyArray) -> Estimate:
+def _estimate_batch(problems: Problem, config: Config, key_data) -> Estimate:
+    keys = jax.random.wrap_key_data(key_data)
     return jax.vmap(lambda pb, k: estimate_problem(pb, config, k))(problems, keys)
 
 
@@ -54,8 +61,15 @@ def estimate_sharded(problems: Problem, config: Config, keys: PRNGKeyArray, mesh
     if pad:
         problems, keys = jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, 0)]), (problems, keys))
     sharding = NamedSharding(mesh, P("batch"))
-    problems, keys = jax.device_put((problems, keys), sharding)
-    result = _estimate_batch(problems, config, keys)
+
+    def place(x):  # each process fills only the shards of its own devices
+        host = np.asarray(x)
+        return jax.make_array_from_callback(host.shape, sharding, lambda index: host[index])
+
+    problems, key_data = jax.tree.map(place, (problems, jax.random.key_data(keys)))
+    result = _estimate_batch(problems, config, key_data)
+    if jax.process_count() > 1:
+        result = multihost_utils.process_allgather(result, tiled=True)
     return jax.tree.map(lambda x: x[:batch], result)
 
 

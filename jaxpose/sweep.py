@@ -115,11 +115,13 @@ def plot_sweep(results: dict[str, list[dict]], path: Path, title: str = "") -> N
         ax.plot(x, [100 * r["found"] / k for r, k in zip(rows, n, strict=True)], "o-", label="found (< 1°)")
         ax.plot(x, [100 * r["success"] / k for r, k in zip(rows, n, strict=True)], "s--", label="success")
         ax.plot(x, [100 * r["false_success"] / k for r, k in zip(rows, n, strict=True)], "x:", label="false success")
-        ax.set(xlabel=AXES[axis][0], ylabel="% of trials", ylim=(-5, 105))
+        ax.set(
+            xlabel=AXES[axis][0], ylabel="% of trials", ylim=(-5, 105), xscale="log" if axis == "rotation" else "linear"
+        )
         err = ax.twinx()
         err.semilogy(x, [r.get("median_rotation_error_deg", np.nan) for r in rows], "k^-", ms=4, lw=0.8)
         err.set_ylabel("median rotation error, °")
-        ax.legend(fontsize=7, loc="lower left")
+        ax.legend(fontsize=7, loc="center left")
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
