@@ -3,8 +3,8 @@
 Base case: N5 at 5.5 m in the paper's previous attitude, rotated by 10° about a random axis
 through O_t, noise-free, no dropout. Each sweep varies one condition over the values of
 [`AXES`][] and keeps the others at the base; trial j of value v uses key (seed, axis, v, j),
-so a sweep is reproducible and its values are paired. The trials of one value run as one
-batch through [`jaxpose.scale.estimate_sharded`][], so a sweep spreads over every JAX device
+so a sweep is reproducible and a value's trials do not depend on the value list. The trials
+of one value run as one batch through [`jaxpose.scale.estimate_sharded`][], so a sweep spreads over every JAX device
 (and every host after `jax.distributed.initialize()`).
 
 A trial is *found* when the rotation error is < 1°; *success* when it is also reported as a
@@ -54,8 +54,9 @@ def _pair(axis: str, value: float, key):
 
 def sweep_value(axis: str, value: float, trials: int, config: Config, seed: int = 0) -> dict:
     """`trials` random pairs at one condition → found/success rates and error statistics."""
-    index = 1000 * list(AXES).index(axis) + 100 * list(AXES[axis][1]).index(value)
-    pairs = [_pair(axis, value, jax.random.fold_in(jax.random.key(seed), index + j)) for j in range(trials)]
+    # Keys from the axis and the value itself (in thousandths), not its place in the list.
+    base = jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), list(AXES).index(axis)), round(1000 * value))
+    pairs = [_pair(axis, value, jax.random.fold_in(base, j)) for j in range(trials)]
     # One static capacity for the batch: the largest cloud, rounded up to 2048 points (few compiles).
     most = max(int(p.curr.valid.sum()) for p in pairs)
     config = dataclasses.replace(config, max_points=2048 * math.ceil(most / 2048))
@@ -70,7 +71,7 @@ def sweep_value(axis: str, value: float, trials: int, config: Config, seed: int 
     if not usable:
         return {**row, "found": 0, "success": 0, "false_success": 0}
     batch = jax.tree.map(lambda *xs: np.stack(xs), *problems)
-    search_keys = jax.random.split(jax.random.fold_in(jax.random.key(seed), 10**6 + index), len(usable))
+    search_keys = jax.random.split(jax.random.fold_in(base, 10**6), len(usable))
     est = estimate_sharded(batch, config, search_keys)
     errors = [pair_errors(p, est.rotation[i], est.translation[i], problems[i].frame) for i, p in enumerate(usable)]
     rot = np.array([e["rotation_error_deg"] for e in errors])

@@ -32,14 +32,14 @@ def test_sweep_value_is_reproducible(noisy):
     assert sweep_value("noise", 1.0, 3, CONFIG) == noisy
 
 
-def test_sweep_command_writes_json_and_plot(tmp_path, monkeypatch):
-    monkeypatch.setitem(AXES, "dropout", ("pixel dropout probability", (0.0, 0.5)))
-    config = CONFIG
-    monkeypatch.setattr("jaxpose.cli._preset", lambda name: lambda **kw: config)
-    result = CliRunner().invoke(app, ["sweep", "--axes", "dropout", "--trials", "2", "--out", str(tmp_path)])
+def test_sweep_command_writes_json_and_plot(tmp_path, monkeypatch, noisy):
+    # The fixture's condition and config, so the command reuses its compiled batch.
+    monkeypatch.setitem(AXES, "noise", ("range noise σ, cm", (1.0,)))
+    monkeypatch.setattr("jaxpose.cli._preset", lambda name: lambda **kw: CONFIG)
+    result = CliRunner().invoke(app, ["sweep", "--axes", "noise", "--trials", "3", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
     data = json.loads((tmp_path / "sweep_accurate.json").read_text())
-    assert [r["value"] for r in data["results"]["dropout"]] == [0.0, 0.5]
+    assert data["results"]["noise"] == [noisy]
     assert (tmp_path / "sweep_accurate.png").stat().st_size > 10_000
     assert CliRunner().invoke(app, ["sweep", "--axes", "tilt"]).exit_code != 0
 
