@@ -15,15 +15,17 @@ from .frame import PlaneFrame
 from .objective import hard_score, soft_score
 from .poses import motion_from_displacement
 from .problem import Problem
-from .search import global_search, local_refine
+from .search import local_refine, recentred_search
 
-SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE = 0, 1, 2, 3, 4
+SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE, AT_BOX_EDGE = 0, 1, 2, 3, 4, 5
 STATUS_TEXT = {
     SUCCESS: "success",
     NOT_CONVERGED: "the local refine did not converge",
     LOW_SCORE: "the best hard score is below Config.min_score: the patterns do not match",
     DEGENERATE: "the problem is unusable (see Problem.status: frame, capacities, too few points)",
     NON_FINITE: "a non-finite value appeared",
+    AT_BOX_EDGE: "the global search ended at the edge of its box (after Config.recentre re-centred searches): "
+    "the motion may lie outside it; widen the box (Config.wide()) or give a prior",
 }
 STATUS_NAME = {
     SUCCESS: "success",
@@ -31,6 +33,7 @@ STATUS_NAME = {
     LOW_SCORE: "low score",
     DEGENERATE: "degenerate",
     NON_FINITE: "non-finite",
+    AT_BOX_EDGE: "at box edge",
 }
 """Short names of the status codes, for tables."""
 
@@ -45,9 +48,10 @@ class Estimate(eqx.Module):
       estimates can be chained.
     - `frame`: the plane frame n of the previous cloud.
     - `hard`, `soft`: the objectives at `params`.
-    - `status`: one of `SUCCESS` … `NON_FINITE` (`STATUS_TEXT`); `success` is status == 0.
+    - `status`: one of `SUCCESS` … `AT_BOX_EDGE` (`STATUS_TEXT`); `success` is status == 0.
     - `evaluations`: objective evaluations of the global stage; `local_steps`: refine steps.
-    - `history`: best objective value of each CMA-ES generation.
+    - `history`: best objective value of each CMA-ES generation (first search).
+    - `recentred`: re-centred CMA-ES searches that ran (see `Config.recentre`).
     - `global_params`, `global_score`: the global stage's result, before the refine.
     """
 
@@ -61,6 +65,7 @@ class Estimate(eqx.Module):
     evaluations: Int[Array, ""]
     local_steps: Int[Array, ""]
     history: Float[Array, " G"]
+    recentred: Int[Array, ""]
     global_params: Float[Array, "6"]
     global_score: Float[Array, ""]
 
@@ -72,7 +77,7 @@ class Estimate(eqx.Module):
 @eqx.filter_jit
 def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Estimate:
     """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
-    glob = global_search(problem, config, key)
+    glob = recentred_search(problem, config, key)
     loc = local_refine(problem, config, glob.params)
     p = loc.params
     hard = hard_score(p, problem)
@@ -83,7 +88,11 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         jnp.where(
             ~finite,
             NON_FINITE,
-            jnp.where(hard < config.min_score, LOW_SCORE, jnp.where(loc.converged, SUCCESS, NOT_CONVERGED)),
+            jnp.where(
+                hard < config.min_score,
+                LOW_SCORE,
+                jnp.where(glob.at_edge, AT_BOX_EDGE, jnp.where(loc.converged, SUCCESS, NOT_CONVERGED)),
+            ),
         ),
     )
     p = jnp.where(finite, p, jnp.zeros_like(p))
@@ -99,6 +108,7 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         evaluations=jnp.asarray(glob.evaluations, jnp.int32),
         local_steps=jnp.asarray(loc.steps, jnp.int32),
         history=glob.history,
+        recentred=jnp.asarray(glob.recentred, jnp.int32),
         global_params=glob.params,
         global_score=glob.score,
     )

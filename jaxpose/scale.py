@@ -68,7 +68,7 @@ def estimate_sharded(problems: Problem, config: Config, keys: PRNGKeyArray, mesh
 
     problems, key_data = jax.tree.map(place, (problems, jax.random.key_data(keys)))
     result = _estimate_batch(problems, config, key_data)
-    if jax.process_count() > 1:
+    if len({d.process_index for d in mesh.devices.flat}) > 1:  # gather other hosts' shares
         result = multihost_utils.process_allgather(result, tiled=True)
     return jax.tree.map(lambda x: x[:batch], result)
 

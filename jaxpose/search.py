@@ -28,11 +28,18 @@ LOCAL_SCALE = (math.radians(1.0),) * 3 + (0.01,) * 3
 """Units of the local stage's coordinates: 1° and 1 cm."""
 
 
+EDGE = 0.98
+"""A global result whose largest coordinate is at least this fraction of the box half-width
+from the box centre lies at the edge: the optimum may lie outside the box."""
+
+
 class GlobalResult(eqx.Module):
     params: Float[Array, "6"]  # best p found, radians and metres, frame n
     score: Float[Array, ""]  # its objective value
-    history: Float[Array, " G"]  # best objective value of each generation
+    history: Float[Array, " G"]  # best objective value of each generation (first search)
     evaluations: Array
+    at_edge: Array  # the best point lies at the edge of the (last) box
+    recentred: Array  # how many re-centred searches ran
 
 
 def box_scale(config: Config) -> Float[Array, "6"]:
@@ -62,7 +69,39 @@ def global_search(problem: Problem, config: Config, key: PRNGKeyArray, start=Non
 
     state, history = jax.lax.scan(generation, state, jax.random.split(key, config.generations))
     best = to_p(state.best_solution)
-    return GlobalResult(best, -state.best_fitness, history, jnp.asarray(config.population * config.generations))
+    at_edge = jnp.max(jnp.abs(jnp.clip(state.best_solution, -1.0, 1.0))) >= EDGE
+    evaluations = jnp.asarray(config.population * config.generations)
+    return GlobalResult(best, -state.best_fitness, history, evaluations, at_edge, jnp.asarray(0))
+
+
+def recentred_search(problem: Problem, config: Config, key: PRNGKeyArray) -> GlobalResult:
+    """[`global_search`][] over the box, then up to `config.recentre` more searches, each over
+    a box centred on the previous best, while that best lies at the edge of its box.
+
+    A best point at the edge means the optimum may lie outside the box (a motion larger than
+    the box, or a translation pushed out by a large rotation about a far axis); a search
+    centred there reaches (1 + recentre) box half-widths from p = 0. A new search replaces
+    the previous result only if it scores at least as well. `at_edge` of the result says
+    whether the last search still ended at its edge.
+    """
+
+    def again(prev: GlobalResult, k: PRNGKeyArray) -> GlobalResult:
+        new = global_search(problem, config, k, start=prev.params)
+        keep = new.score >= prev.score
+        return GlobalResult(
+            jnp.where(keep, new.params, prev.params),
+            jnp.where(keep, new.score, prev.score),
+            prev.history,
+            prev.evaluations + new.evaluations,
+            jnp.where(keep, new.at_edge, prev.at_edge),
+            prev.recentred + 1,
+        )
+
+    result = global_search(problem, config, key)
+    for round_ in range(config.recentre):
+        k = jax.random.fold_in(key, round_ + 1)
+        result = jax.lax.cond(result.at_edge, again, lambda prev, _: prev, result, k)
+    return result
 
 
 class LocalResult(eqx.Module):

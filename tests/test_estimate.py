@@ -8,7 +8,8 @@ import trimesh
 from conftest import T_PAPER, paper_rotation
 
 import jaxpose as jp
-from jaxpose.estimate import DEGENERATE, LOW_SCORE, NOT_CONVERGED, SUCCESS
+from jaxpose.estimate import AT_BOX_EDGE, DEGENERATE, LOW_SCORE, NOT_CONVERGED, STATUS_TEXT, SUCCESS
+from jaxpose.search import recentred_search
 
 CONFIG = jp.Config.fast(max_points=5120)  # fixed capacity: every test shares one compile
 
@@ -73,3 +74,25 @@ def test_degenerate_pair_raises_at_the_boundary(paper_clouds):
     flat = jp.Cloud.from_points(np.c_[np.random.default_rng(0).normal(size=(50, 2)), np.zeros(50)])
     with pytest.raises(ValueError, match="previous cloud"):
         jp.estimate(flat, paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
+
+
+def test_recentred_search_reaches_beyond_the_box_and_flags_its_edge(paper_clouds):
+    # The N5 variant-2 truth has an angle of about 11.7° in frame n: outside a ±8° box.
+    problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], CONFIG)
+    truth = jp.true_displacement(
+        problem.frame, paper_rotation("previous"), T_PAPER, paper_rotation("variant2"), T_PAPER
+    )
+    box = np.radians(8.0)
+    assert np.abs(np.asarray(truth[:3])).max() > 1.2 * box
+    one = recentred_search(problem, jp.Config.fast(angle_box=box, recentre=0), jax.random.key(1))
+    assert bool(one.at_edge) and int(one.recentred) == 0
+    more = recentred_search(problem, jp.Config.fast(angle_box=box, recentre=2), jax.random.key(1))
+    assert int(more.recentred) >= 1 and not bool(more.at_edge)
+    rot = np.degrees(float(jp.rotation_angle(jp.rotation(*more.params[:3]), jp.rotation(*truth[:3]))))
+    assert rot < 1.0 and float(more.score) > float(one.score)
+
+
+def test_a_motion_outside_the_box_is_not_reported_as_success(paper_clouds):
+    config = jp.Config.fast(max_points=5120, angle_box=np.radians(8.0), recentre=0)
+    est = jp.estimate(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config, key=jax.random.key(1))
+    assert int(est.status) in (AT_BOX_EDGE, LOW_SCORE), STATUS_TEXT[int(est.status)]
