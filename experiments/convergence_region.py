@@ -69,7 +69,10 @@ def main():
             }  # fmt: skip
             print(pair.label, f"δ = {delta:5.1f}", {m: f"{v:.0%}" for m, v in rates.items()}, flush=True)
     table = {
-        m: {str(d): float(np.mean([r["success"] for r in rows if r["delta"] == d and r["method"] == m])) for d in OFFSETS}
+        m: {
+            str(d): float(np.mean([r["success"] for r in rows if r["delta"] == d and r["method"] == m]))
+            for d in OFFSETS
+        }
         for m in METHODS
     }
     reach = {m: max([d for d in OFFSETS if table[m][str(d)] >= 0.9], default=0.0) for m in METHODS}

@@ -133,7 +133,7 @@ class Config(eqx.Module):
     @classmethod
     def wide(cls, **kw) -> Config:
         """Capture mode: a ±90° / ±0.30 m box and a larger CMA-ES, for a first estimate with no
-        prior (issue 4's capture test; see `experiments/capture.py`)."""
+        prior (issue 4's capture test: `jaxpose compare --set capture`)."""
         box = {"angle_box": math.radians(90.0), "shift_box": 0.30, "population": 64, "generations": 60}
         return cls(**{**box, **kw})
 
