@@ -2,7 +2,7 @@
 point clouds, by plane-intersection patterns (METHOD.md), in JAX.
 
 Data flow: `simulate` (or `load_cloud`) → `Cloud` → `plane_frame` → `Problem` (patterns, grids) →
-`hard_score` / `soft_score` → `estimate`.
+`hard_score` / `soft_score` → `estimate` → `track` (sequences from `simulate_sequence`).
 """
 
 from . import targets
@@ -21,7 +21,9 @@ from .poses import (
 )
 from .problem import Problem
 from .rotations import angles, rotation, rotation_angle
+from .sequence import Tumble, simulate_sequence
 from .simulate import simulate
+from .track import track
 
 __all__ = [
     "Camera",
@@ -43,6 +45,9 @@ __all__ = [
     "rotation",
     "rotation_angle",
     "simulate",
+    "simulate_sequence",
     "targets",
+    "track",
     "true_displacement",
+    "Tumble",
 ]
