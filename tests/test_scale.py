@@ -10,6 +10,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 from jaxpose.scale import estimate_sharded
 
@@ -58,6 +59,7 @@ SCRIPT = (
 )
 
 
+@pytest.mark.slow
 def test_four_host_devices_match_one():
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
     out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=600)
@@ -93,6 +95,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_two_processes_with_jax_distributed_match_one(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     port = str(_free_port())

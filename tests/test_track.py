@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
+import pytest
 
 import jaxpose as jp
 from jaxpose.sequence import Tumble, simulate_sequence, tumble_poses
@@ -36,6 +37,7 @@ def test_filter_recovers_the_rate_from_exact_poses():
     np.testing.assert_allclose(np.asarray(filt.velocity), [0.0, 0.0, 0.01], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_tracking_a_simulated_tumble_converges():
     # 2 s at 12.5 Hz, noise-free; keyframes every 0.4 s. The fast config keeps it short; its
     # estimates are ≈ 0.5° off, so after 2 s the rate is known to about 1°/s (the accurate
