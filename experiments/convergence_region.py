@@ -11,6 +11,7 @@ to BFGS (the Nelder–Mead paper claims 10× over Newton for its orbit problem).
     uv run python experiments/convergence_region.py  →  results/convergence_region.json
 """
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,7 +22,7 @@ from jaxpose.scenarios import paper_pairs
 from jaxpose.search import LOCAL_SCALE, global_search, local_refine
 
 OFFSETS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
-TRIALS = 10
+TRIALS = 6
 METHODS = {
     "BFGS": jp.Config.accurate(max_points=5120, local="bfgs", local_steps=200),
     "NelderMead": jp.Config.accurate(max_points=5120, local="nelder_mead", local_steps=600),
@@ -37,6 +38,7 @@ def _errors(p, truth):
     return angle, 100 * jnp.linalg.norm(p[3:] - truth[3:])
 
 
+@eqx.filter_jit
 def run_method(name, config, problem, start, key):
     if name == "CMA-ES":
         return global_search(problem, config, key, start=start).params
