@@ -51,6 +51,8 @@ class Config(eqx.Module):
     - `recentre`: how many more CMA-ES searches may run, each centred on the previous best,
       while that best lies at the edge of its box (static; 0 = one search, as the paper).
       The result is reported as `AT_BOX_EDGE` if the last search still ends at its edge.
+      Under `jax.vmap` every pair pays all the searches (`lax.cond` becomes a select:
+      batches ran 2.7× slower in `jaxpose bench`); set 0 for batched work where that matters.
     - `min_score`: a result whose hard score is below this is reported as low-score. 0.7
       (was 0.5): on the 100-pair capture set the results ≥ 5° off that reported success had
       hard scores 0.54–0.73 (8 of 11 below 0.7) and the correct ones 0.65–0.97 (2 of 74
