@@ -33,9 +33,8 @@ METHODS = {
 @jax.jit
 def _errors(p, truth):
     """Rotation angle (°) and translation distance (cm) between two displacements in frame n."""
-    R = jp.rotation(p[0], p[1], p[2]) @ jp.rotation(truth[0], truth[1], truth[2]).T
-    angle = jnp.degrees(jnp.arccos(jnp.clip((jnp.trace(R) - 1) / 2, -1.0, 1.0)))
-    return angle, 100 * jnp.linalg.norm(p[3:] - truth[3:])
+    angle = jp.rotation_angle(jp.rotation(p[0], p[1], p[2]), jp.rotation(truth[0], truth[1], truth[2]))
+    return jnp.degrees(angle), 100 * jnp.linalg.norm(p[3:] - truth[3:])
 
 
 @eqx.filter_jit

@@ -76,10 +76,10 @@ def reproduce(
     write_csv(results, out / "reproduction.csv")
     n5 = paper_pair("N5", "variant 2")
     plot_clouds({"N5 previous": n5.prev, "N5 variant 2": n5.curr}, out / "fig4_clouds.png")
-    default_n5 = next(r for r in results["default"] if r["shape"] == "N5" and r["variant"] == "variant 2")
-    plot_selected(n5.prev, default_n5["problem"], out / "fig5_selected.png")
     for name, rows in results.items():
         r = next(r for r in rows if r["shape"] == "N5" and r["variant"] == "variant 2")
+        if name == "default":
+            plot_selected(n5.prev, r["problem"], out / "fig5_selected.png")
         title = f"N5 variant 2, {name} config: hard f {r['hard']:.2f} at the found p"
         plot_patterns(r["problem"], r["estimate"].params, out / f"fig6_patterns_{name}.png", title)
     typer.echo(

@@ -82,18 +82,11 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
     p = loc.params
     hard = hard_score(p, problem)
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
-    status = jnp.where(
-        problem.status != 0,
-        DEGENERATE,
-        jnp.where(
-            ~finite,
-            NON_FINITE,
-            jnp.where(
-                hard < config.min_score,
-                LOW_SCORE,
-                jnp.where(glob.at_edge, AT_BOX_EDGE, jnp.where(loc.converged, SUCCESS, NOT_CONVERGED)),
-            ),
-        ),
+    # First matching condition wins: the order is the priority of the statuses.
+    status = jnp.select(
+        [problem.status != 0, ~finite, hard < config.min_score, glob.at_edge, ~loc.converged],
+        [DEGENERATE, NON_FINITE, LOW_SCORE, AT_BOX_EDGE, NOT_CONVERGED],
+        SUCCESS,
     )
     p = jnp.where(finite, p, jnp.zeros_like(p))
     R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)

@@ -24,6 +24,15 @@ from .problem import Problem, round_half_up  # noqa: E402
 PLANE_COLOURS = ("tab:red", "tab:green", "tab:blue")
 
 
+def save_figure(fig, path: Path, dpi: int = 120, title: str | None = None) -> None:
+    """Lay out, write a PNG and free the figure (every plot of jaxpose ends here)."""
+    if title is not None:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
 def previous_cells(problem: Problem, plane: int) -> np.ndarray:
     """Filled cells (a, b) of the previous pattern on `plane`, `(K, 2)` grid indices."""
     cells = np.asarray(problem.prev_cells)
@@ -56,9 +65,7 @@ def plot_clouds(clouds: dict[str, Cloud], path: Path) -> None:
     ax_front.legend(markerscale=10, loc="upper right", fontsize=8)
     ax_3d.set(xlabel="x_c, m", ylabel="z_c, m", zlabel="−y_c, m", title="oblique view")
     ax_3d.view_init(elev=25, azim=-60)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_selected(cloud: Cloud, problem: Problem, path: Path) -> None:
@@ -73,9 +80,7 @@ def plot_selected(cloud: Cloud, problem: Problem, path: Path) -> None:
         ax.scatter(*b[near].T, s=1.5, c=PLANE_COLOURS[i])
         ax.set(title=f"plane {i + 1} (normal n{j + 1}): {near.sum()} points", xlabel="n1", ylabel="n2", zlabel="n3")
         ax.view_init(elev=20, azim=-50)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_patterns(problem: Problem, found: Float[Array, "6"], path: Path, title: str = "") -> None:
@@ -91,10 +96,7 @@ def plot_patterns(problem: Problem, found: Float[Array, "6"], path: Path, title:
             ax.scatter(curr[:, 1], curr[:, 0], s=14, marker="x", c="tab:red", linewidths=0.8, label="current")
             ax.set(title=f"plane {i + 1}, {label}", xlabel="ζ cell", ylabel="η cell", aspect="equal")
             ax.legend(fontsize=7, loc="upper right")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110, title=title)
 
 
-__all__ = ["current_cells", "plot_clouds", "plot_patterns", "plot_selected", "previous_cells"]
+__all__ = ["current_cells", "plot_clouds", "plot_patterns", "plot_selected", "previous_cells", "save_figure"]

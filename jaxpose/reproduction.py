@@ -97,7 +97,7 @@ def reproduce_pair(pair: Pair, config: Config, key) -> dict:
     truth = np.asarray(true_displacement(problem.frame, pair.R1, pair.t1, pair.R2, pair.t2), float) * TO_DEG_CM
     found = np.asarray(est.params, float) * TO_DEG_CM
     d_alpha, d_r = relative_errors(truth, found - truth)
-    variant, shape = pair.label.split(" ", 1)[1], pair.label.split(" ", 1)[0]
+    shape, variant = pair.label.split(" ", 1)  # "N5 variant 2"
     return {
         "variant": variant,
         "shape": shape,

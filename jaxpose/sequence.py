@@ -15,11 +15,13 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import jaxlie
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from .camera import Camera
 from .cloud import Cloud
 from .dynamics import propagate_attitude, propagate_cw, quat_to_matrix
+from .rotations import rotation
 from .simulate import simulate
 
 C_FROM_O = jnp.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
@@ -52,8 +54,6 @@ class Tumble(eqx.Module):
         `rate_deg_s` °/s about a fixed body direction (random with `key`, else (1, 2, 3)/√14),
         at rest relative to the chief, 500 km orbit; inertia of a 1.6 × 1.0 × 0.8 m 100 kg box
         (N5's body; the panels are thin)."""
-        from .rotations import rotation
-
         axis = jnp.array([1.0, 2.0, 3.0]) if key is None else jax.random.normal(key, (3,))
         mass, (a, b, c) = 100.0, (1.6, 1.0, 0.8)
         inertia = jnp.diag(jnp.array([b * b + c * c, a * a + c * c, a * a + b * b]) * mass / 12)
@@ -97,7 +97,7 @@ def tumble_poses(tumble: Tumble, times: Float[Array, " T"]):
     positions = rel[:, :3] @ C_FROM_O.T
     # Attitude: body → inertial from the quaternion, inertial → orbital, orbital → camera.
     body_to_i0 = C_FROM_O.T @ tumble.attitude  # at t = 0, i = o
-    q0 = _matrix_to_quat(body_to_i0)
+    q0 = jaxlie.SO3.from_matrix(body_to_i0).wxyz
     q, rates = propagate_attitude(q0, tumble.rate, tumble.inertia, w, times)
 
     def camera_attitude(t, qk):
@@ -106,12 +106,6 @@ def tumble_poses(tumble: Tumble, times: Float[Array, " T"]):
         return C_FROM_O @ o_from_i @ quat_to_matrix(qk)
 
     return jax.vmap(camera_attitude)(times, q), positions, rates
-
-
-def _matrix_to_quat(R):
-    import jaxlie
-
-    return jaxlie.SO3.from_matrix(R).wxyz
 
 
 def simulate_sequence(

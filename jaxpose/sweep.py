@@ -104,10 +104,9 @@ def run_sweep(
 
 def plot_sweep(results: dict[str, list[dict]], path: Path, title: str = "") -> None:
     """One panel per axis: found and success rates (%, left) and median rotation error (°, right, log)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from .figures import save_figure  # also selects the Agg backend
 
     fig, axs = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.6), squeeze=False)
     for ax, (axis, rows) in zip(axs[0], results.items(), strict=True):
@@ -123,10 +122,7 @@ def plot_sweep(results: dict[str, list[dict]], path: Path, title: str = "") -> N
         err.semilogy(x, [r.get("median_rotation_error_deg", np.nan) for r in rows], "k^-", ms=4, lw=0.8)
         err.set_ylabel("median rotation error, °")
         ax.legend(fontsize=7, loc="center left")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110, title=title)
 
 
 __all__ = ["AXES", "BASE", "plot_sweep", "run_sweep", "sweep_value"]

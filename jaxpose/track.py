@@ -24,6 +24,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 from .cloud import Cloud
 from .config import Config
 from .estimate import SUCCESS, estimate_problem
+from .frame import plane_frame
 from .problem import Problem
 
 
@@ -131,7 +132,7 @@ def track(
     keep the last chained pose. Pure and jittable (`lax.scan` over frames).
     """
     first = jax.tree.map(lambda x: x[0], clouds)
-    frame0 = Problem.build(first, first, config).frame  # O_n of frame 0: the tracked point
+    frame0 = plane_frame(first)  # O_n of frame 0: the tracked point
     noise = jnp.diag(jnp.concatenate([jnp.full(3, rotation_sigma**2), jnp.full(3, point_sigma**2)]))
     eye = jnp.eye(3, dtype=frame0.origin.dtype)
 
