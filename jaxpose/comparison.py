@@ -81,6 +81,8 @@ def run_jaxpose(
                 "seconds": seconds,
                 "status": STATUS_NAME[int(est.status)],
                 "hard": float(est.hard),
+                "inliers": float(est.inliers),
+                "fine_rms_mm": 1000 * float(est.fine_rms),
             }
         )
         if progress is not None:

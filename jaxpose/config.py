@@ -58,6 +58,23 @@ class Config(eqx.Module):
       hard scores 0.54–0.73 (8 of 11 below 0.7) and the correct ones 0.65–0.97 (2 of 74
       below 0.7); with 2 cm range noise correct results scored 0.75–0.79.
 
+    **Fine stage** (ours, `jaxpose.fine`): point-to-plane least squares on the points near the
+    cutting planes, after the local refine; it brings the paper's pairs from 0.1–0.6° to
+    ≤ 0.03° (`experiments/fine_stage.py`).
+
+    - `fine`: "point_to_plane" or "none" (static).
+    - `fine_prev_slab`, `fine_curr_slab`: half-widths of the previous and current slabs
+      around each cutting plane, in units of d (the previous one is wider so that every
+      current point finds its neighbours).
+    - `fine_inlier`: current points farther than this from every previous point are left
+      out (metres): surface seen in only one cloud.
+    - `fine_planar_fraction`: fraction of the previous points kept, the most planar ones
+      (smallest / middle scatter eigenvalue of the neighbourhood): edges and corners go.
+    - `fine_points`: capacity of each side (static); more points are thinned evenly.
+    - `fine_neighbours`: neighbours of a normal fit (static).
+    - `fine_rounds`: most match-then-solve rounds (static); `fine_steps`, `fine_tol`: LM's
+      step limit per round and rtol = atol in units of 1° / 1 cm (static).
+
     **Input checks:**
 
     - `max_range`: clouds with a point farther than this from the camera (metres) are
@@ -83,6 +100,16 @@ class Config(eqx.Module):
     local_steps: int = eqx.field(static=True, default=100)
     local_tol: float = eqx.field(static=True, default=3e-4)
     recentre: int = eqx.field(static=True, default=2)
+    fine_prev_slab: float = 3.0
+    fine_curr_slab: float = 2.0
+    fine_inlier: float = 0.03
+    fine_planar_fraction: float = 0.7
+    fine: Literal["point_to_plane", "none"] = eqx.field(static=True, default="point_to_plane")
+    fine_points: int = eqx.field(static=True, default=2048)
+    fine_neighbours: int = eqx.field(static=True, default=20)
+    fine_rounds: int = eqx.field(static=True, default=20)
+    fine_steps: int = eqx.field(static=True, default=20)
+    fine_tol: float = eqx.field(static=True, default=1e-6)
 
     def __check_init__(self):
         if self.slices < 1 or self.grid_cells < 3 or (self.max_points or 1) < 1 or self.max_cells < 1:
@@ -93,6 +120,11 @@ class Config(eqx.Module):
             raise ValueError(f"local must be 'bfgs', 'nelder_mead' or 'none', got {self.local!r}.")
         if self.population < 2 or self.generations < 1 or self.local_steps < 0 or not self.local_tol > 0:
             raise ValueError("population ≥ 2, generations ≥ 1, local_steps ≥ 0 and local_tol > 0 are required.")
+        if self.fine not in ("point_to_plane", "none"):
+            raise ValueError(f"fine must be 'point_to_plane' or 'none', got {self.fine!r}.")
+        counts = (self.fine_points, self.fine_neighbours - 2, self.fine_steps, self.fine_rounds)
+        if min(counts) < 1 or not self.fine_tol > 0:
+            raise ValueError("fine_points ≥ 1, fine_neighbours ≥ 3, fine_steps ≥ 1 and fine_tol > 0 are required.")
         if self.recentre < 0:
             raise ValueError(f"Config.recentre must be ≥ 0, got {self.recentre!r}.")
         ranges = {
@@ -102,6 +134,10 @@ class Config(eqx.Module):
             "angle_box": (self.angle_box, 0.0, math.pi),
             "shift_box": (self.shift_box, 0.0, math.inf),
             "max_range": (self.max_range, 0.0, math.inf),
+            "fine_prev_slab": (self.fine_prev_slab, 0.0, math.inf),
+            "fine_curr_slab": (self.fine_curr_slab, 0.0, math.inf),
+            "fine_inlier": (self.fine_inlier, 0.0, math.inf),
+            "fine_planar_fraction": (self.fine_planar_fraction, 0.0, 1.0),
         }
         for name, (value, lo, hi) in ranges.items():
             if isinstance(value, int | float) and not lo < value <= hi:
@@ -123,8 +159,9 @@ class Config(eqx.Module):
     @classmethod
     def paper(cls, **kw) -> Config:
         """The paper's setting: three planes, d = 0.026 m, the hard objective, one search in the
-        box, no local refine."""
-        paper = {"global_objective": "hard", "local": "none", "population": 48, "generations": 60, "recentre": 0}
+        box, no local refine and no fine stage."""
+        paper = {"global_objective": "hard", "local": "none", "fine": "none", "recentre": 0}
+        paper |= {"population": 48, "generations": 60}
         return cls(**{**paper, **kw})
 
     @classmethod

@@ -1,6 +1,7 @@
 """`estimate`: the displacement between two clouds, end to end, with a status.
 
-Problem → global search (CMA-ES) → local refine (soft objective) → hard score reported.
+Problem → global search (CMA-ES) → local refine (soft objective) → fine stage (point-to-plane
+least squares on the near-plane points, `jaxpose.fine`) → hard score reported.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from .cloud import Cloud
 from .config import Config
+from .fine import fine_refine
 from .frame import PlaneFrame
 from .objective import hard_score, soft_score
 from .poses import motion_from_displacement
@@ -20,7 +22,7 @@ from .search import local_refine, recentred_search
 SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE, AT_BOX_EDGE = 0, 1, 2, 3, 4, 5
 STATUS_TEXT = {
     SUCCESS: "success",
-    NOT_CONVERGED: "the local refine did not converge",
+    NOT_CONVERGED: "the local refine or the fine stage did not converge",
     LOW_SCORE: "the best hard score is below Config.min_score: the patterns do not match",
     DEGENERATE: "the problem is unusable (see Problem.status: frame, capacities, too few points)",
     NON_FINITE: "a non-finite value appeared",
@@ -53,6 +55,8 @@ class Estimate(eqx.Module):
     - `history`: best objective value of each CMA-ES generation (first search).
     - `recentred`: re-centred CMA-ES searches that ran (see `Config.recentre`).
     - `global_params`, `global_score`: the global stage's result, before the refine.
+    - `inliers`, `fine_rms`: the fine stage's inlier fraction and inlier RMS point-to-plane
+      residual (metres) at `params`; NaN when `Config.fine` is "none".
     """
 
     params: Float[Array, "6"]
@@ -68,6 +72,8 @@ class Estimate(eqx.Module):
     recentred: Int[Array, ""]
     global_params: Float[Array, "6"]
     global_score: Float[Array, ""]
+    inliers: Float[Array, ""]
+    fine_rms: Float[Array, ""]
 
     @property
     def success(self) -> Bool[Array, ""]:
@@ -79,12 +85,16 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
     """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
     glob = recentred_search(problem, config, key)
     loc = local_refine(problem, config, glob.params)
-    p = loc.params
+    p, converged = loc.params, loc.converged
+    inliers = rms = jnp.asarray(jnp.nan, problem.d.dtype)
+    if config.fine != "none":
+        fine = fine_refine(problem, config, loc.params)
+        p, converged, inliers, rms = fine.params, converged & fine.converged, fine.inliers, fine.rms
     hard = hard_score(p, problem)
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
     # First matching condition wins: the order is the priority of the statuses.
     status = jnp.select(
-        [problem.status != 0, ~finite, hard < config.min_score, glob.at_edge, ~loc.converged],
+        [problem.status != 0, ~finite, hard < config.min_score, glob.at_edge, ~converged],
         [DEGENERATE, NON_FINITE, LOW_SCORE, AT_BOX_EDGE, NOT_CONVERGED],
         SUCCESS,
     )
@@ -104,6 +114,8 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         recentred=jnp.asarray(glob.recentred, jnp.int32),
         global_params=glob.params,
         global_score=glob.score,
+        inliers=inliers,
+        fine_rms=rms,
     )
 
 

@@ -26,6 +26,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._checks import is_concrete
 from .cloud import Cloud
 from .config import Config
+from .fine import FineCloud, fine_cloud
 from .frame import FRAME_STATUS_TEXT, PlaneFrame, plane_frame
 
 # Bits of Problem.status.
@@ -59,6 +60,8 @@ class Problem(eqx.Module):
       r·M_prev, where M_prev(c) = max over Q(c) of exp(−δ)·[previous cell filled]; zero
       outside each grid and in the dump.
     - `prev_selected`, `prev_filled`: `(P,)` selected points and filled cells per plane.
+    - `fine`: the previous side of the fine stage ([`jaxpose.fine.FineCloud`][]; one empty
+      slot when `Config.fine` is "none").
     - `status`: bit flags `PROBLEM_*` (0 = usable).
     - `planes`, `grid_cells`: static.
     """
@@ -80,6 +83,7 @@ class Problem(eqx.Module):
     rm_field: Float[Array, " F"]
     prev_selected: Int[Array, " P"]
     prev_filled: Int[Array, " P"]
+    fine: FineCloud
     status: Int[Array, ""]
     planes: tuple[tuple[int, float], ...] = eqx.field(static=True)
     grid_cells: int = eqx.field(static=True)
@@ -283,6 +287,7 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
         rm_field=flat(fields_rm),
         prev_selected=jnp.stack(selected),
         prev_filled=jnp.stack(filled_n),
+        fine=fine_cloud(A, prev.valid, config, planes, d),
         status=jnp.asarray(status, jnp.int32),
         planes=planes,
         grid_cells=C,

@@ -70,8 +70,8 @@ def global_search(problem: Problem, config: Config, key: PRNGKeyArray, start=Non
     state, history = jax.lax.scan(generation, state, jax.random.split(key, config.generations))
     best = to_p(state.best_solution)
     at_edge = jnp.max(jnp.abs(jnp.clip(state.best_solution, -1.0, 1.0))) >= EDGE
-    evaluations = jnp.asarray(config.population * config.generations)
-    return GlobalResult(best, -state.best_fitness, history, evaluations, at_edge, jnp.asarray(0))
+    evaluations = jnp.asarray(config.population * config.generations, jnp.int32)
+    return GlobalResult(best, -state.best_fitness, history, evaluations, at_edge, jnp.asarray(0, jnp.int32))
 
 
 def recentred_search(problem: Problem, config: Config, key: PRNGKeyArray) -> GlobalResult:
@@ -83,24 +83,42 @@ def recentred_search(problem: Problem, config: Config, key: PRNGKeyArray) -> Glo
     centred there reaches (1 + recentre) box half-widths from p = 0. A new search replaces
     the previous result only if it scores at least as well. `at_edge` of the result says
     whether the last search still ended at its edge.
+
+    All searches are one `lax.while_loop` over a single traced CMA-ES, so the search compiles
+    once whatever `recentre` is, and under `jax.vmap` a batch pays for as many searches as
+    its neediest pair (not for all of them, as `lax.cond` turned into a select would).
     """
+    dtype = problem.d.dtype
 
-    def again(prev: GlobalResult, k: PRNGKeyArray) -> GlobalResult:
-        new = global_search(problem, config, k, start=prev.params)
+    def search(state):
+        prev, round_ = state
+        start = jnp.where(round_ == 0, jnp.zeros(6, dtype), prev.params)
+        new = global_search(problem, config, jax.random.fold_in(key, round_), start=start)
         keep = new.score >= prev.score
-        return GlobalResult(
-            jnp.where(keep, new.params, prev.params),
-            jnp.where(keep, new.score, prev.score),
-            prev.history,
+        pick = lambda a, b: jnp.where(keep, a, b)  # noqa: E731
+        result = GlobalResult(
+            pick(new.params, prev.params),
+            pick(new.score, prev.score),
+            jnp.where(round_ == 0, new.history, prev.history),  # the first search's history
             prev.evaluations + new.evaluations,
-            jnp.where(keep, new.at_edge, prev.at_edge),
-            prev.recentred + 1,
+            pick(new.at_edge, prev.at_edge),
+            round_,
         )
+        return result, round_ + 1
 
-    result = global_search(problem, config, key)
-    for round_ in range(config.recentre):
-        k = jax.random.fold_in(key, round_ + 1)
-        result = jax.lax.cond(result.at_edge, again, lambda prev, _: prev, result, k)
+    def more(state):
+        result, round_ = state
+        return (round_ == 0) | (result.at_edge & (round_ <= config.recentre))
+
+    empty = GlobalResult(
+        jnp.zeros(6, dtype),
+        jnp.asarray(-jnp.inf, dtype),
+        jnp.zeros(config.generations, dtype),
+        jnp.asarray(0, jnp.int32),
+        jnp.asarray(True),
+        jnp.asarray(0, jnp.int32),
+    )
+    result, _ = jax.lax.while_loop(more, search, (empty, jnp.asarray(0, jnp.int32)))
     return result
 
 

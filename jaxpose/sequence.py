@@ -23,6 +23,7 @@ from .cloud import Cloud
 from .dynamics import propagate_attitude, propagate_cw, quat_to_matrix
 from .rotations import rotation
 from .simulate import simulate
+from .targets import CHIBIS_M_INERTIA
 
 C_FROM_O = jnp.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 """Rows: camera axes in orbital-frame coordinates (x_c = y_o, y_c = z_o, z_c = x_o)."""
@@ -64,6 +65,31 @@ class Tumble(eqx.Module):
             rate=math.radians(rate_deg_s) * axis / jnp.linalg.norm(axis),
             inertia=inertia,
             orbit_rate=orbit_rate(500e3),
+        )
+
+    @classmethod
+    def chibis_m(cls, rate_deg_s: float | None = None) -> Tumble:
+        """The Chibis-M separation scenario (RELATED.md A.7), read in the camera frame c as
+        the report presumably meant (3 m along the optical axis): O_t at (0, 0, 3) m moving
+        at (0, 0, 0.01) m/s, body rate (0, 0.01, 0) rad/s, inertia diag(1.60, 1.16, 1.86)
+        kg·m², circular orbit of 600 km (as printed; the Progress TLE implies ≈ 500 km).
+        Initial attitude: the paper's previous attitude (23.5°, 23.5°, 1°), ours.
+
+        `rate_deg_s` replaces the rate by one of that magnitude about the report's measured
+        axis ω ∝ (2.08, 3.01, 2.15) (its flight video: |ω| = 4.24 °/s; rate sensors 4.5 °/s).
+        """
+        if rate_deg_s is None:
+            rate = jnp.array([0.0, 0.01, 0.0])
+        else:
+            axis = jnp.array([2.08, 3.01, 2.15])
+            rate = math.radians(rate_deg_s) * axis / jnp.linalg.norm(axis)
+        return cls(
+            position=jnp.array([0.0, 0.0, 3.0]),
+            velocity=jnp.array([0.0, 0.0, 0.01]),
+            attitude=rotation(*(math.radians(x) for x in (23.5, 23.5, 1.0))),
+            rate=rate,
+            inertia=jnp.diag(jnp.asarray(CHIBIS_M_INERTIA)),
+            orbit_rate=orbit_rate(600e3),
         )
 
 

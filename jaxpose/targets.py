@@ -129,3 +129,37 @@ def n5() -> Boxes:
     centers = [[0.0, 0.0, 0.0]] + [[sx * x, 0.0, sz * z] for sx in (1, -1) for sz in (1, -1)]
     sizes = [[0.940, 0.840, 0.740]] + [[0.570, 0.016, 0.696]] * 4
     return Boxes.create(centers, sizes)
+
+
+CHIBIS_M_INERTIA = (1.60, 1.16, 1.86)
+"""Principal moments of inertia of Chibis-M, kg·m² (RELATED.md A.7)."""
+
+CHIBIS_M_MASS = 40.0
+"""Chibis-M's mass, kg (ours: the microsatellite's published launch mass; not in RELATED.md)."""
+
+
+def chibis_m_body() -> tuple[float, float, float]:
+    """Sides (m) of the uniform box of mass `CHIBIS_M_MASS` with the moments `CHIBIS_M_INERTIA`:
+    from I_x = m(b² + c²)/12 etc., a² = 6(I_y + I_z − I_x)/m (and cyclically)."""
+    ix, iy, iz = CHIBIS_M_INERTIA
+    k = 6.0 / CHIBIS_M_MASS
+    return (float(np.sqrt(k * (iy + iz - ix))), float(np.sqrt(k * (ix + iz - iy))), float(np.sqrt(k * (ix + iy - iz))))
+
+
+def chibis_m(rod: float = 0.02) -> Boxes:
+    """A Chibis-M-like target (ours; RELATED.md gives no drawing): the body box that matches
+    the report's inertia at 40 kg (0.46 × 0.59 × 0.37 m, `chibis_m_body`), two 1.0 m antenna
+    rods along ±x_t from the centres of the ±x faces (the report finds its long antennas as the
+    extreme points along X) and two 0.3 m rods along +z_t from two corners of the +z face
+    (its two small antennas). Rods are `rod` × `rod` m square in section."""
+    a, b, c = chibis_m_body()
+    long_, short = 1.0, 0.3
+    centers = [[0.0, 0.0, 0.0]]
+    sizes = [[a, b, c]]
+    for sx in (1, -1):
+        centers.append([sx * (a / 2 + long_ / 2), 0.0, 0.0])
+        sizes.append([long_, rod, rod])
+    for sy in (1, -1):
+        centers.append([a / 2 - rod, sy * (b / 2 - rod), c / 2 + short / 2])
+        sizes.append([rod, rod, short])
+    return Boxes.create(centers, sizes)

@@ -25,18 +25,39 @@ def n5_estimate(paper_clouds):
     return jp.estimate(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
 
 
+def component_errors(est, variant):
+    """Largest angle error (°) and translation-component error (cm) in frame n, as issue 4."""
+    truth = jp.true_displacement(est.frame, paper_rotation("previous"), T_PAPER, paper_rotation(variant), T_PAPER)
+    err = np.abs(np.asarray(est.params - truth))
+    return np.degrees(err[:3]).max(), 100 * err[3:].max()
+
+
+@pytest.mark.parametrize("shape", ["n1", "n5"])
+@pytest.mark.parametrize("variant", ["variant1", "variant2"])
+def test_paper_pairs_within_issue_bounds(paper_clouds, shape, variant):
+    """Issue 4: every angle error ≤ 0.05° and every translation error ≤ 0.05 cm on the paper's
+    four noise-free pairs (the paper: up to 1.17° and 0.36 cm; variant 1 failed)."""
+    est = jp.estimate(paper_clouds[shape, "previous"], paper_clouds[shape, variant], CONFIG, key=jax.random.key(0))
+    assert int(est.status) == SUCCESS, STATUS_TEXT[int(est.status)]
+    angle_deg, shift_cm = component_errors(est, variant)
+    assert angle_deg <= 0.05 and shift_cm <= 0.05, (angle_deg, shift_cm)
+    assert angle_deg <= 0.001 and shift_cm <= 0.001, (angle_deg, shift_cm)  # measured: < 5e-5° in float32
+    assert float(est.inliers) > 0.75 and float(est.fine_rms) < 1e-5  # noise-free: exact fit
+
+
 def test_recovers_the_paper_variant2_displacement(n5_estimate):
     est = n5_estimate
     assert int(est.status) in (SUCCESS, NOT_CONVERGED)
     rot_deg, trans_cm = errors(est, "variant2")
-    assert rot_deg < 0.5 and trans_cm < 0.5, (rot_deg, trans_cm)
+    assert rot_deg < 0.05 and trans_cm < 0.05, (rot_deg, trans_cm)
     assert float(est.hard) > 0.85
     # Camera-frame motion consistent with the displacement in frame n.
     R_true = paper_rotation("variant2") @ paper_rotation("previous").T
     assert np.degrees(float(jp.rotation_angle(est.rotation, R_true))) < 0.5
-    # CMA-ES history is recorded and the refine never makes things worse.
+    # CMA-ES history is recorded; the fine stage (a different objective) may trade a little
+    # soft score for accuracy, but not the match itself.
     assert est.history.shape == (CONFIG.generations,)
-    assert float(est.soft) >= float(est.global_score) - 1e-12 or CONFIG.global_objective == "hard"
+    assert float(est.soft) >= float(est.global_score) - 0.05
 
 
 def test_same_key_gives_identical_result(paper_clouds, n5_estimate):

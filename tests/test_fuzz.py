@@ -14,7 +14,7 @@ import jaxpose as jp
 from jaxpose.estimate import STATUS_TEXT, SUCCESS
 
 N = 200  # points per fuzzed cloud: one shape, one compile
-CONFIG = jp.Config.fast(max_points=256, population=8, generations=4, local_steps=5)
+CONFIG = jp.Config.fast(max_points=256, fine_points=256, population=8, generations=4, local_steps=5)
 FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
 
 KINDS = ("blob", "collinear", "coplanar", "duplicates", "ambiguous", "huge", "tiny", "far", "ints")
