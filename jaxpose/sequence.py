@@ -115,16 +115,19 @@ def tumble_poses(tumble: Tumble, times: Float[Array, " T"]):
     """True poses of the target at `times` (s from the initial state): G^c_t (T, 3, 3), O_t in
     frame c (T, 3) and the body rates (T, 3)."""
     times = jnp.asarray(times)
+    # The integrators start at their first time: prepend t = 0 (the initial state), drop it after.
+    grid = jnp.concatenate([jnp.zeros(1, times.dtype), times])
     w = tumble.orbit_rate
     # Orbital frame o at time t relative to the inertial frame i (= o at t = 0): o turns about
     # +y at the orbit rate, so vectors in i map to o by R_y(ω t)ᵀ.
     state0 = jnp.concatenate([C_FROM_O.T @ tumble.position, C_FROM_O.T @ tumble.velocity])
-    rel = propagate_cw(state0, w, times)
+    rel = propagate_cw(state0, w, grid)[1:]
     positions = rel[:, :3] @ C_FROM_O.T
     # Attitude: body → inertial from the quaternion, inertial → orbital, orbital → camera.
     body_to_i0 = C_FROM_O.T @ tumble.attitude  # at t = 0, i = o
     q0 = jaxlie.SO3.from_matrix(body_to_i0).wxyz
-    q, rates = propagate_attitude(q0, tumble.rate, tumble.inertia, w, times)
+    q, rates = propagate_attitude(q0, tumble.rate, tumble.inertia, w, grid)
+    q, rates = q[1:], rates[1:]
 
     def camera_attitude(t, qk):
         c, s = jnp.cos(w * t), jnp.sin(w * t)

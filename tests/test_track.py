@@ -26,6 +26,16 @@ def test_tumble_poses_start_at_the_initial_state_and_turn_at_the_set_rate():
     assert abs(step - 4.5) < 0.07 and abs(np.degrees(float(jnp.linalg.norm(rates[0]))) - 4.5) < 1e-9
 
 
+def test_tumble_poses_count_time_from_the_initial_state_not_the_first_time_asked():
+    tumble = Tumble.chibis_m()
+    R_late, p_late, w_late = tumble_poses(tumble, jnp.array([300.0, 301.0]))
+    R_all, p_all, w_all = tumble_poses(tumble, jnp.array([0.0, 300.0, 301.0]))
+    np.testing.assert_allclose(np.asarray(p_late), np.asarray(p_all[1:]), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(R_late), np.asarray(R_all[1:]), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(w_late), np.asarray(w_all[1:]), atol=1e-12)
+    assert abs(float(jnp.linalg.norm(p_late[0])) - 3.0) > 2.0  # 300 s at 1 cm/s: moved ≈ 3 m
+
+
 def test_filter_recovers_the_rate_from_exact_poses():
     rate = jnp.array([0.02, -0.05, 0.06])  # rad/s in frame c
     filt = TrackFilter.start(jnp.zeros(3))
