@@ -8,7 +8,7 @@ import trimesh
 from conftest import T_PAPER, paper_rotation
 
 import jaxpose as jp
-from jaxpose.estimate import AT_BOX_EDGE, DEGENERATE, LOW_SCORE, NOT_CONVERGED, STATUS_TEXT, SUCCESS
+from jaxpose.estimate import AT_BOX_EDGE, DEGENERATE, LOW_SCORE, NOT_CONVERGED, STATUS_TEXT, SUCCESS, estimate_problem
 from jaxpose.search import recentred_search
 
 CONFIG = jp.Config.fast(max_points=5120)  # fixed capacity: every test shares one compile
@@ -86,7 +86,10 @@ def test_a_different_target_is_not_reported_as_success(camera, paper_clouds):
 
 def test_degenerate_pair_under_jit_is_flagged_not_success(paper_clouds):
     flat = jp.Cloud.from_points(np.c_[np.random.default_rng(0).normal(size=(5120, 2)), np.zeros(5120)])
-    est = jax.jit(lambda a, b, k: jp.estimate(a, b, CONFIG, key=k))(flat, flat, jax.random.key(0))
+    # Under jit nothing can raise: the problem is built there (as `estimate` does under a
+    # tracer), then the shared compiled `estimate_problem` runs on it.
+    problem = jax.jit(lambda a, b: jp.Problem.build(a, b, CONFIG))(flat, flat)
+    est = estimate_problem(problem, CONFIG, jax.random.key(0))
     assert int(est.status) == DEGENERATE and not bool(est.success)
     assert np.all(np.isfinite(np.asarray(est.params)))
 

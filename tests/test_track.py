@@ -10,7 +10,7 @@ import pytest
 
 import jaxpose as jp
 from jaxpose.sequence import Tumble, simulate_sequence, tumble_poses
-from jaxpose.track import TrackFilter, track
+from jaxpose.track import Chain, TrackFilter, filter_chain, track
 
 
 def test_tumble_poses_start_at_the_initial_state_and_turn_at_the_set_rate():
@@ -28,11 +28,12 @@ def test_tumble_poses_start_at_the_initial_state_and_turn_at_the_set_rate():
 
 def test_tumble_poses_count_time_from_the_initial_state_not_the_first_time_asked():
     tumble = Tumble.chibis_m()
-    R_late, p_late, w_late = tumble_poses(tumble, jnp.array([300.0, 301.0]))
+    # Same shape of `times` in both calls: one compile.
+    R_late, p_late, w_late = tumble_poses(tumble, jnp.array([300.0, 301.0, 302.0]))
     R_all, p_all, w_all = tumble_poses(tumble, jnp.array([0.0, 300.0, 301.0]))
-    np.testing.assert_allclose(np.asarray(p_late), np.asarray(p_all[1:]), atol=1e-9)
-    np.testing.assert_allclose(np.asarray(R_late), np.asarray(R_all[1:]), atol=1e-9)
-    np.testing.assert_allclose(np.asarray(w_late), np.asarray(w_all[1:]), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(p_late[:2]), np.asarray(p_all[1:]), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(R_late[:2]), np.asarray(R_all[1:]), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(w_late[:2]), np.asarray(w_all[1:]), atol=1e-12)
     assert abs(float(jnp.linalg.norm(p_late[0])) - 3.0) > 2.0  # 300 s at 1 cm/s: moved ≈ 3 m
 
 
@@ -47,11 +48,38 @@ def test_filter_recovers_the_rate_from_exact_poses():
     np.testing.assert_allclose(np.asarray(filt.velocity), [0.0, 0.0, 0.01], atol=1e-4)
 
 
+def _drifting_chain(rate0, spin_accel, dt=0.04, frames=251):
+    """Exact chained poses of a rotation about a fixed axis whose rate grows linearly."""
+    t = jnp.arange(frames) * dt
+    angle = rate0 * t + 0.5 * spin_accel * t**2
+    axis = jnp.array([0.6, 0.0, 0.8])
+    R = jax.vmap(lambda a: jaxlie.SO3.exp(axis * a).as_matrix())(angle)
+    points = jnp.zeros((frames, 3))
+    return Chain(R, jnp.zeros((frames, 3)), points, jnp.zeros(frames, jnp.int32), jnp.zeros(3)), (
+        rate0 + spin_accel * t
+    )[:, None] * axis
+
+
+def test_filter_follows_a_drifting_rate_that_the_constant_rate_model_lags():
+    # 0.08 rad/s growing by 1e-3 rad/s² (N5's tumble drifts by ≈ 1e-3 rad/s², see the module
+    # docstring); exact measurements at 25 Hz for 10 s.
+    chain, true_rate = _drifting_chain(0.08, 1e-3)
+    with_accel = filter_chain(chain, 0.04, rotation_sigma=1e-4, point_sigma=1e-4)
+    constant = filter_chain(chain, 0.04, 1e-4, 1e-4, spin_accel_noise=0.0, spin_accel_sigma=0.0)
+    err_accel = float(jnp.linalg.norm(with_accel.rate[-1] - true_rate[-1]))
+    err_const = float(jnp.linalg.norm(constant.rate[-1] - true_rate[-1]))
+    assert err_accel < 1e-4, err_accel
+    assert err_const > 10 * err_accel, (err_const, err_accel)
+    np.testing.assert_allclose(
+        np.asarray(with_accel.spin_accel[-1]), np.asarray(1e-3 * jnp.array([0.6, 0.0, 0.8])), atol=1e-4
+    )
+
+
 @pytest.mark.slow
 def test_tracking_a_simulated_tumble_converges():
     # 2 s at 12.5 Hz, noise-free; keyframes every 0.4 s. The fast config keeps it short; its
     # estimates are ≈ 0.5° off, so after 2 s the rate is known to about 1°/s (the accurate
-    # config over 10 s: 0.17°/s, experiments/tumble_tracking.py).
+    # config over 10 s: 0.026°/s, experiments/tumble_tracking.py).
     dt = 0.08
     seq = simulate_sequence(jp.Camera.camcube2(), jp.targets.n5(), Tumble.n5(4.5), 2.0, 1 / dt)
     result = jax.jit(lambda c: track(c, dt, jp.Config.fast(max_points=5120), jax.random.key(0), 5))(seq.clouds)
