@@ -28,12 +28,14 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jaxlie
-from jaxtyping import Array, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from .cloud import Cloud
 from .config import Config
 from .estimate import SUCCESS, estimate_problem
+from .fine import fine_covariance
 from .frame import plane_frame
+from .poses import motion_from_displacement
 from .problem import Problem
 
 
@@ -43,6 +45,20 @@ def _exp(v):
 
 def _log(R):
     return jaxlie.SO3.from_matrix(R).log()
+
+
+def _transition(dt, rate_noise, accel_noise, spin_accel_noise):
+    """Error-state transition F (15, 15) and process noise Q (15, 15) over `dt` seconds."""
+    eye, zero = jnp.eye(3), jnp.zeros((3, 3))
+    spin = jnp.block([[eye, dt * eye, 0.5 * dt**2 * eye], [zero, eye, dt * eye], [zero, zero, eye]])
+    move = jnp.block([[eye, dt * eye], [zero, eye]])
+    densities = (0.0, rate_noise, spin_accel_noise, 0.0, accel_noise)
+    q = jnp.concatenate([jnp.full(3, n**2 * dt) for n in densities])
+    return jax.scipy.linalg.block_diag(spin, move), jnp.diag(q)
+
+
+def _skew(v):
+    return jnp.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 class TrackFilter(eqx.Module):
@@ -74,26 +90,14 @@ class TrackFilter(eqx.Module):
         """Propagate by `dt` seconds. Random-walk densities: `rate_noise` on ω (rad/s/√s),
         `spin_accel_noise` on α (rad/s²/√s), `accel_noise` on v (m/s/√s). With α = 0 and
         `spin_accel_noise` = 0 this is the constant-rate model."""
-        eye, zero = jnp.eye(3), jnp.zeros((3, 3))
-        spin = jnp.block([[eye, dt * eye, 0.5 * dt**2 * eye], [zero, eye, dt * eye], [zero, zero, eye]])
-        move = jnp.block([[eye, dt * eye], [zero, eye]])
-        F = jax.scipy.linalg.block_diag(spin, move)
-        q = jnp.concatenate(
-            [
-                jnp.zeros(3),
-                jnp.full(3, rate_noise**2 * dt),
-                jnp.full(3, spin_accel_noise**2 * dt),
-                jnp.zeros(3),
-                jnp.full(3, accel_noise**2 * dt),
-            ]
-        )
+        F, q = _transition(dt, rate_noise, accel_noise, spin_accel_noise)
         return TrackFilter(
             _exp(self.rate * dt + 0.5 * self.spin_accel * dt**2) @ self.attitude,
             self.rate + dt * self.spin_accel,
             self.spin_accel,
             self.position + dt * self.velocity,
             self.velocity,
-            F @ self.cov @ F.T + jnp.diag(q),
+            F @ self.cov @ F.T + q,
         )
 
     def update(self, rotation, point, noise: Float[Array, "6 6"]) -> TrackFilter:
@@ -119,13 +123,44 @@ class Chain(eqx.Module):
     """Per frame k (leading axis T): the chained motion since frame 0 (`rotations` R_0k,
     `translations` t_0k, camera frame c, m), the tracked point R_0k O_n + t_0k (`points`, m),
     the `status` of frame k's estimate (frame 0: success), and frame 0's plane origin O_n
-    (`origin`, m, frame c). Frames whose estimate failed keep the last chained motion."""
+    (`origin`, m, frame c). Frames whose estimate failed keep the last chained motion.
+
+    The measurement itself, keyframe → k, is kept too: `relative_rotations` and
+    `relative_translations` (camera frame c), their covariance `relative_cov` (6, 6; the
+    rotation as a left rotation vector in rad, then the translation in m; from the fine
+    stage's least squares scaled by [`COVARIANCE_SCALE`][], identity·1e-4 where the fine
+    stage is off) and `switched` (frame k became the keyframe after its estimate)."""
 
     rotations: Float[Array, "T 3 3"]
     translations: Float[Array, "T 3"]
     points: Float[Array, "T 3"]
     status: Int[Array, " T"]
     origin: Float[Array, "3"]
+    relative_rotations: Float[Array, "T 3 3"]
+    relative_translations: Float[Array, "T 3"]
+    relative_cov: Float[Array, "T 6 6"]
+    switched: Bool[Array, " T"]
+
+
+# Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 2.36× too small on N5
+# pairs with 1 cm range noise (experiments/nees.py; with the scale the NEES is consistent).
+COVARIANCE_SCALE = 2.36
+
+
+def measurement_covariance(problem: Problem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
+    """Covariance of the camera-frame motion (R, t) measured by an estimate p (frame n):
+    J Σ_p Jᵀ, with Σ_p the scaled fine-stage covariance and J the Jacobian of
+    p ↦ (log(R(p) R(p̂)ᵀ), t(p)) at p̂. Rotation vector in rad (left, frame c), then m."""
+    R_hat, _ = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
+
+    def motion(q):
+        R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, q)
+        return jnp.concatenate([_log(R @ R_hat.T), t])
+
+    J = jax.jacfwd(motion)(p)
+    cov = COVARIANCE_SCALE * fine_covariance(problem, config, p)
+    out = J @ cov @ J.T
+    return (out + out.T) / 2
 
 
 class Track(eqx.Module):
@@ -143,6 +178,78 @@ class Track(eqx.Module):
     position: Float[Array, "T 3"]
     velocity: Float[Array, "T 3"]
     rate_std: Float[Array, "T 3"]
+
+
+class KeyframeFilter(eqx.Module):
+    """EKF with a cloned keyframe (stochastic cloning): the [`TrackFilter`][] state (`now`)
+    plus the attitude A_key and tracked-point position r_key at the current keyframe, with
+    one covariance `cov` (21, 21) over (δφ, δω, δα, δr, δv, δφ_key, δr_key); `now.cov` is
+    its leading (15, 15) block.
+
+    Why: a chained measurement carries every earlier keyframe switch's error, so successive
+    measurements share errors the plain filter takes as independent. Here each measurement
+    is the estimate itself, keyframe → k: A_k = R_rel A_key and r_k = R_rel r_key + t_rel,
+    with the estimate's own covariance; the keyframe's uncertainty lives in the state."""
+
+    now: TrackFilter
+    key_attitude: Float[Array, "3 3"]
+    key_position: Float[Array, "3"]
+    cov: Float[Array, "21 21"]
+
+    @classmethod
+    def start(cls, position, **start_options) -> KeyframeFilter:
+        """At frame 0, which is the first keyframe (see [`TrackFilter.start`][])."""
+        now = TrackFilter.start(position, **start_options)
+        return cls(now, now.attitude, now.position, _clone_cov(now.cov))
+
+    def predict(self, dt: float, rate_noise: float, accel_noise: float, spin_accel_noise: float) -> KeyframeFilter:
+        """Propagate the current state; the keyframe clone does not move."""
+        F, q = _transition(dt, rate_noise, accel_noise, spin_accel_noise)
+        F = jax.scipy.linalg.block_diag(F, jnp.eye(6))
+        Q = jax.scipy.linalg.block_diag(q, jnp.zeros((6, 6)))
+        cov = F @ self.cov @ F.T + Q
+        now = eqx.tree_at(
+            lambda f: f.cov, self.now.predict(dt, rate_noise, accel_noise, spin_accel_noise), cov[:15, :15]
+        )
+        return KeyframeFilter(now, self.key_attitude, self.key_position, cov)
+
+    def update(self, R_rel, t_rel, noise: Float[Array, "6 6"]) -> KeyframeFilter:
+        """Fuse a measured keyframe → now motion (R_rel, t_rel; camera frame c) with
+        covariance `noise` (left rotation vector in rad, then m)."""
+        M = self.now.attitude @ self.key_attitude.T  # predicted R_rel
+        Mr = M @ self.key_position
+        residual = jnp.concatenate([_log(R_rel @ M.T), t_rel - (self.now.position - Mr)])
+        H = jnp.zeros((6, 21))
+        H = H.at[:3, :3].set(jnp.eye(3)).at[:3, 15:18].set(-M)
+        H = H.at[3:, :3].set(_skew(Mr)).at[3:, 15:18].set(-_skew(Mr) @ M)
+        H = H.at[3:, 9:12].set(jnp.eye(3)).at[3:, 18:21].set(-M)
+        # Residual t: t_rel − (r − M r_key); δ(r − M r_key) = δr − M δr_key + [M r_key]× δθ.
+        S = H @ self.cov @ H.T + noise
+        K = jnp.linalg.solve(S, H @ self.cov).T
+        dx = K @ residual
+        joseph = jnp.eye(21) - K @ H
+        cov = joseph @ self.cov @ joseph.T + K @ noise @ K.T
+        now = TrackFilter(
+            _exp(dx[:3]) @ self.now.attitude,
+            self.now.rate + dx[3:6],
+            self.now.spin_accel + dx[6:9],
+            self.now.position + dx[9:12],
+            self.now.velocity + dx[12:15],
+            cov[:15, :15],
+        )
+        key_attitude = _exp(dx[15:18]) @ self.key_attitude
+        return KeyframeFilter(now, key_attitude, self.key_position + dx[18:], cov)
+
+    def clone(self) -> KeyframeFilter:
+        """Make the current state the keyframe (after frame k becomes the new keyframe)."""
+        return KeyframeFilter(self.now, self.now.attitude, self.now.position, _clone_cov(self.cov[:15, :15]))
+
+
+def _clone_cov(P15):
+    """Covariance (21, 21) of (state, copy of its δφ and δr) from the state's (15, 15)."""
+    pick = jnp.zeros((6, 15)).at[:3, :3].set(jnp.eye(3)).at[3:, 9:12].set(jnp.eye(3))
+    T = jnp.concatenate([jnp.eye(15), pick])
+    return T @ P15 @ T.T
 
 
 def chain_estimates(clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_every: int = 25) -> Chain:
@@ -166,22 +273,32 @@ def chain_estimates(clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_e
     def step(carry, inputs):
         key_cloud, key_R, key_t, last_R, last_t = carry
         k, cloud = inputs
-        est = estimate_problem(Problem.build(key_cloud, cloud, config), config, jax.random.fold_in(key, k))
+        problem = Problem.build(key_cloud, cloud, config)
+        est = estimate_problem(problem, config, jax.random.fold_in(key, k))
         ok = est.status == SUCCESS
         R = jnp.where(ok, est.rotation @ key_R, last_R)  # chain: frame 0 → keyframe → k
         t = jnp.where(ok, est.rotation @ key_t + est.translation, last_t)
+        if config.fine == "none":
+            cov = jnp.eye(6, dtype=origin.dtype) * 1e-4
+        else:
+            cov = measurement_covariance(problem, config, est.params)
+        cov = jnp.where(ok, cov, jnp.eye(6, dtype=origin.dtype))  # finite even when unused
         switch = (k % keyframe_every == 0) & ok
         key_cloud = jax.tree.map(lambda a, b: jnp.where(switch, a, b), cloud, key_cloud)
         key_R, key_t = jnp.where(switch, R, key_R), jnp.where(switch, t, key_t)
-        return (key_cloud, key_R, key_t, R, t), (R, t, R @ origin + t, est.status)
+        out = (R, t, R @ origin + t, est.status, est.rotation, est.translation, cov, switch)
+        return (key_cloud, key_R, key_t, R, t), out
 
     zeros = jnp.zeros(3, origin.dtype)
     frames = jnp.arange(1, clouds.valid.shape[0])
     rest = jax.tree.map(lambda x: x[1:], clouds)
-    _, (R, t, points, status) = jax.lax.scan(step, (first, eye, zeros, eye, zeros), (frames, rest))
-    head = (eye, zeros, origin, jnp.asarray(SUCCESS, status.dtype))
-    R, t, points, status = (jnp.concatenate([h[None], o]) for h, o in zip(head, (R, t, points, status), strict=True))
-    return Chain(R, t, points, status, origin)
+    _, outs = jax.lax.scan(step, (first, eye, zeros, eye, zeros), (frames, rest))
+    head = (eye, zeros, origin, jnp.asarray(SUCCESS, outs[3].dtype), eye, zeros, jnp.eye(6, dtype=origin.dtype))
+    head = (*head, jnp.asarray(True))
+    R, t, points, status, R_rel, t_rel, cov, switched = (
+        jnp.concatenate([h[None], o]) for h, o in zip(head, outs, strict=True)
+    )
+    return Chain(R, t, points, status, origin, R_rel, t_rel, cov, switched)
 
 
 def filter_chain(
@@ -216,14 +333,42 @@ def filter_chain(
         filt = jax.tree.map(lambda a, b: jnp.where(status == SUCCESS, a, b), updated, filt)
         return filt, _row(filt)
 
-    def _row(filt):
-        std = jnp.sqrt(jnp.diag(filt.cov)[3:6])
-        return filt.attitude, filt.rate, filt.spin_accel, filt.position, filt.velocity, std
-
     filt = TrackFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
     _, outs = jax.lax.scan(step, filt, (chain.rotations[1:], chain.points[1:], chain.status[1:]))
     filtered = (jnp.concatenate([h[None], o]) for h, o in zip(_row(filt), outs, strict=True))
     return Track(chain.rotations, chain.points, chain.status, *filtered)
+
+
+def filter_keyframes(
+    chain: Chain,
+    dt: float,
+    rate_noise: float = 1e-4,
+    accel_noise: float = 1e-4,
+    spin_accel_noise: float = 1e-4,
+    spin_accel_sigma: float = 0.01,
+) -> Track:
+    """Run the [`KeyframeFilter`][] over a chain: each successful frame's own estimate
+    (keyframe → k, `chain.relative_*`) with its covariance (`chain.relative_cov`), the
+    keyframe cloned where `chain.switched`. Same outputs and noise densities as
+    [`filter_chain`][]. Pure and jittable."""
+
+    def step(filt, inputs):
+        R_rel, t_rel, cov, status, switched = inputs
+        filt = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
+        filt = jax.tree.map(lambda a, b: jnp.where(status == SUCCESS, a, b), filt.update(R_rel, t_rel, cov), filt)
+        filt = jax.tree.map(lambda a, b: jnp.where(switched, a, b), filt.clone(), filt)
+        return filt, _row(filt.now)
+
+    filt = KeyframeFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
+    inputs = (chain.relative_rotations, chain.relative_translations, chain.relative_cov, chain.status, chain.switched)
+    _, outs = jax.lax.scan(step, filt, jax.tree.map(lambda x: x[1:], inputs))
+    filtered = (jnp.concatenate([h[None], o]) for h, o in zip(_row(filt.now), outs, strict=True))
+    return Track(chain.rotations, chain.points, chain.status, *filtered)
+
+
+def _row(filt: TrackFilter):
+    std = jnp.sqrt(jnp.diag(filt.cov)[3:6])
+    return filt.attitude, filt.rate, filt.spin_accel, filt.position, filt.velocity, std
 
 
 def track(
@@ -240,4 +385,15 @@ def track(
     return filter_chain(chain_estimates(clouds, config, key, keyframe_every), dt, **filter_options)
 
 
-__all__ = ["Chain", "Track", "TrackFilter", "chain_estimates", "filter_chain", "track"]
+__all__ = [
+    "COVARIANCE_SCALE",
+    "Chain",
+    "KeyframeFilter",
+    "Track",
+    "TrackFilter",
+    "chain_estimates",
+    "filter_chain",
+    "filter_keyframes",
+    "measurement_covariance",
+    "track",
+]

@@ -10,7 +10,7 @@ import pytest
 
 import jaxpose as jp
 from jaxpose.sequence import Tumble, simulate_sequence, tumble_poses
-from jaxpose.track import Chain, TrackFilter, filter_chain, track
+from jaxpose.track import Chain, TrackFilter, filter_chain, filter_keyframes, track
 
 
 def test_tumble_poses_start_at_the_initial_state_and_turn_at_the_set_rate():
@@ -54,16 +54,25 @@ def _drifting_chain(rate0, spin_accel, dt=0.04, frames=251):
     angle = rate0 * t + 0.5 * spin_accel * t**2
     axis = jnp.array([0.6, 0.0, 0.8])
     R = jax.vmap(lambda a: jaxlie.SO3.exp(axis * a).as_matrix())(angle)
-    points = jnp.zeros((frames, 3))
-    return Chain(R, jnp.zeros((frames, 3)), points, jnp.zeros(frames, jnp.int32), jnp.zeros(3)), (
-        rate0 + spin_accel * t
-    )[:, None] * axis
+    # The tracked point (on the rotation axis, as a centroid is) starts 5.5 m ahead and moves at
+    # 1 cm/s along z. Keyframe every 25 frames; the relative measurements keyframe → k.
+    origin = jnp.array([0.2, -0.1, 5.5])
+    points = origin + jnp.outer(t, jnp.array([0.0, 0.0, 0.01]))
+    translations = points - jax.vmap(lambda Rk: Rk @ origin)(R)
+    k = jnp.arange(frames)
+    key = jnp.where(k % 25 == 0, k - 25, (k // 25) * 25).clip(0)  # measured from the last keyframe
+    R_rel = jax.vmap(lambda a, b: a @ b.T)(R, R[key])
+    t_rel = points - jax.vmap(lambda M, p: M @ p)(R_rel, points[key])
+    cov = jnp.broadcast_to(jnp.eye(6) * 1e-8, (frames, 6, 6))
+    status = jnp.zeros(frames, jnp.int32)
+    chain = Chain(R, translations, points, status, origin, R_rel, t_rel, cov, k % 25 == 0)
+    return chain, (rate0 + spin_accel * t)[:, None] * axis, points
 
 
 def test_filter_follows_a_drifting_rate_that_the_constant_rate_model_lags():
     # 0.08 rad/s growing by 1e-3 rad/s² (N5's tumble drifts by ≈ 1e-3 rad/s², see the module
     # docstring); exact measurements at 25 Hz for 10 s.
-    chain, true_rate = _drifting_chain(0.08, 1e-3)
+    chain, true_rate, _ = _drifting_chain(0.08, 1e-3)
     with_accel = filter_chain(chain, 0.04, rotation_sigma=1e-4, point_sigma=1e-4)
     constant = filter_chain(chain, 0.04, 1e-4, 1e-4, spin_accel_noise=0.0, spin_accel_sigma=0.0)
     err_accel = float(jnp.linalg.norm(with_accel.rate[-1] - true_rate[-1]))
@@ -73,6 +82,16 @@ def test_filter_follows_a_drifting_rate_that_the_constant_rate_model_lags():
     np.testing.assert_allclose(
         np.asarray(with_accel.spin_accel[-1]), np.asarray(1e-3 * jnp.array([0.6, 0.0, 0.8])), atol=1e-4
     )
+
+
+def test_keyframe_filter_on_exact_relative_measurements_matches_the_motion():
+    chain, true_rate, points = _drifting_chain(0.08, 1e-3)
+    result = filter_keyframes(chain, 0.04)
+    assert float(jnp.linalg.norm(result.rate[-1] - true_rate[-1])) < 1e-4
+    np.testing.assert_allclose(np.asarray(result.position[-1]), np.asarray(points[-1]), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(result.velocity[-1]), [0.0, 0.0, 0.01], atol=1e-4)
+    angle = float(jp.rotation_angle(result.attitude[-1], chain.rotations[-1]))
+    assert angle < 1e-5, angle
 
 
 @pytest.mark.slow
