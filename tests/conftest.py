@@ -2,9 +2,15 @@
 checks create their arrays explicitly. Clouds and problems are built once per session so
 compiled functions are shared."""
 
+import os
+import tempfile
+
 import jax
 
 jax.config.update("jax_enable_x64", True)
+# One persistent compilation cache per test session, empty at its start, so the notebooks'
+# kernels (which inherit the environment) reuse each other's compiles.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp(prefix="jaxpose-test-xla-"))
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402

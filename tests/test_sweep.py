@@ -20,6 +20,7 @@ def noisy():
     return sweep_value("noise", 1.0, 3, CONFIG)
 
 
+@pytest.mark.slow  # a vmapped compile of its own (~40 s); run with -m slow
 def test_sweep_value_counts_are_consistent(noisy):
     assert noisy["trials"] == 3 and noisy["unusable"] == 0
     assert 0 <= noisy["success"] <= noisy["found"] <= 3 and noisy["false_success"] <= 3 - noisy["found"]
@@ -28,10 +29,12 @@ def test_sweep_value_counts_are_consistent(noisy):
     assert noisy["found"] >= 2
 
 
+@pytest.mark.slow  # a vmapped compile of its own (~40 s); run with -m slow
 def test_sweep_value_is_reproducible(noisy):
     assert sweep_value("noise", 1.0, 3, CONFIG) == noisy
 
 
+@pytest.mark.slow  # a vmapped compile of its own (~40 s); run with -m slow
 def test_sweep_command_writes_json_and_plot(tmp_path, monkeypatch, noisy):
     # The fixture's condition and config, so the command reuses its compiled batch.
     monkeypatch.setitem(AXES, "noise", ("range noise σ, cm", (1.0,)))
