@@ -20,6 +20,11 @@ constant-rate model follows only with a lag (measured: 0.25 °/s error after 10 
 shape, hence the inertia, is unknown, so Euler's equations cannot be used; a
 constant-acceleration model with a random walk on α follows a smooth drift without lag.
 Measurements: the chained (R_0k, R_0k O_n + t_0k).
+
+**Alternative** ([`KeyframeFilter`][], [`filter_keyframes`][]): the keyframe's pose cloned
+into the state and each estimate keyframe → k fused with its own fine-stage covariance.
+Measured worse than the chained filter on the N5 tumble (0.19 against 0.03–0.07 °/s after
+10 s, `experiments/tumble_tracking.py`), so [`track`][] uses the chained filter.
 """
 
 from __future__ import annotations

@@ -1,0 +1,73 @@
+"""Figures of the tracking results (issue 7), from the committed registrations and JSON.
+
+- `results/tumble_tracking.png`: angular-rate error per frame on the N5 tumble (4.5 °/s,
+  25 Hz, 1 cm noise) for both noise seeds, three filters re-run on the saved registrations
+  (`results/tumble_chain.npz`, `results/tumble_chain_seed1.npz`, written by
+  `experiments/tumble_tracking.py`); the truth comes from the same dynamics (no rendering).
+- `results/chibis_m.png`: Chibis-M rotation and centre error against range
+  (`results/chibis_m.json`, written by `experiments/chibis_m.py`).
+
+    uv run python experiments/plot_tracking.py
+"""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import matplotlib.pyplot as plt
+import numpy as np
+from _common import RESULTS
+from tumble_tracking import true_rates
+
+from jaxpose.figures import save_figure
+from jaxpose.sequence import Tumble, tumble_poses
+from jaxpose.track import Chain, filter_chain, filter_keyframes
+
+RATE_HZ = 25.0
+FILTERS = {
+    "constant rate": lambda ch: filter_chain(ch, 1 / RATE_HZ, spin_accel_noise=0.0, spin_accel_sigma=0.0),
+    "constant α (default)": lambda ch: filter_chain(ch, 1 / RATE_HZ),
+    "keyframe clone + covariance": lambda ch: filter_keyframes(ch, 1 / RATE_HZ),
+}
+
+
+def tumble_figure():
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharey=True)
+    for ax, (seed, name) in zip(axes, ((0, "tumble_chain.npz"), (1, "tumble_chain_seed1.npz")), strict=True):
+        saved = np.load(RESULTS / name)
+        chain = Chain(**{k: jnp.asarray(saved[k]) for k in saved.files})
+        times = jnp.arange(chain.status.shape[0]) / RATE_HZ
+        R = np.asarray(tumble_poses(Tumble.n5(4.5), times)[0])
+        truth = true_rates(R, RATE_HZ)
+        for label, run in FILTERS.items():
+            rate = np.asarray(jax.jit(run)(chain).rate)
+            ax.plot(np.asarray(times), np.degrees(np.linalg.norm(rate - truth, axis=1)), label=label)
+        ax.axhline(0.05, color="k", ls="--", lw=0.8, label="goal 0.05 °/s")
+        ax.set(yscale="log", ylim=(5e-3, 5), xlabel="time, s", title=f"noise seed {seed}")
+    axes[0].set_ylabel("angular-rate error, °/s")
+    axes[0].legend()
+    save_figure(fig, RESULTS / "tumble_tracking.png", title="N5 tumbling at 4.5 °/s, 1 cm range noise, 25 Hz")
+
+
+def chibis_figure():
+    data = json.loads((RESULTS / "chibis_m.json").read_text())
+    rows = data["pairs"]
+    r = np.array([row["range_m"] for row in rows])
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for ax, key, label in (
+        (axes[0], "rotation_error_deg", "rotation error of the 1 s motion, °"),
+        (axes[1], "centre_error_cm", "centre position error, cm"),
+    ):
+        values = np.array([row[key] for row in rows])
+        ok = np.array([row["status"] == 0 for row in rows])
+        ax.scatter(r[ok], values[ok], label="status success")
+        ax.scatter(r[~ok], values[~ok], marker="x", label="other status")
+        ax.set(yscale="log", xlabel="range, m", ylabel=label)
+    axes[0].legend()
+    save_figure(fig, RESULTS / "chibis_m.png", title="Chibis-M-like target, 1 cm range noise, 5 pairs per range")
+
+
+if __name__ == "__main__":
+    tumble_figure()
+    chibis_figure()
+    print("wrote results/tumble_tracking.png, results/chibis_m.png")
