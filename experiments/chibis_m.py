@@ -16,9 +16,9 @@
 import time
 
 import jax
-import jaxlie
 import numpy as np
 from _common import write_json
+from tumble_tracking import true_rates
 
 import jaxpose as jp
 from jaxpose.comparison import pair_errors
@@ -88,7 +88,7 @@ def angular_rate(camera, target, config, rate_deg_s: float = 4.5, duration: floa
     result = jax.block_until_ready(run(seq.clouds))
     seconds = time.perf_counter() - t0
     R = np.asarray(seq.rotations)
-    true_rate = np.asarray(jaxlie.SO3.from_matrix(R[-1] @ R[-2].T).log()) * fps  # apparent, frame c
+    true_rate = true_rates(R, fps)[-1]  # apparent, frame c
     est_rate = np.asarray(result.rate[-1])
     return {
         "true_rate_deg_s": float(np.degrees(np.linalg.norm(true_rate))),

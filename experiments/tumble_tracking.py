@@ -46,10 +46,9 @@ def true_rates(R, rate_hz):
     return np.concatenate([rate[:1], rate])  # rate at frame k ≈ that of step k → k+1
 
 
-def evaluate(result, R, rate_hz):
-    true_rate = true_rates(R, rate_hz)
+def evaluate(result, true_rate, truth_A, rate_hz):
+    """Errors of a filter's `Track` against the true rates and chained attitudes R_0k."""
     rate_err = np.degrees(np.linalg.norm(np.asarray(result.rate) - true_rate, axis=1))
-    truth_A = np.einsum("kij,lj->kil", R, R[0])  # R_0k = G_k G_0ᵀ
     att_err = np.degrees(
         [float(jp.rotation_angle(a, b)) for a, b in zip(np.asarray(result.attitude), truth_A, strict=True)]
     )
@@ -61,7 +60,7 @@ def evaluate(result, R, rate_hz):
         "attitude_error_deg_final": float(att_err[-1]),
         "per_second": {
             f"{k / rate_hz:.0f} s": {"rate_error_deg_s": float(rate_err[k]), "attitude_error_deg": float(att_err[k])}
-            for k in range(0, len(R), every)
+            for k in range(0, len(truth_A), every)
         },
     }
 
@@ -78,15 +77,14 @@ def main(duration: float = 10.0, seed: int = 0, keyframe_every: int = 25, rate_h
     suffix = ("" if seed == 0 else f"_seed{seed}") + ("" if keyframe_every == 25 else f"_key{keyframe_every}")
     np.savez(RESULTS / f"tumble_chain{suffix}.npz", **{k: np.asarray(v) for k, v in vars(chain).items()})
     R = np.asarray(seq.rotations)
-    truth_A = np.einsum("kij,lj->kil", R, R[0])
+    true_rate = true_rates(R, rate_hz)
+    truth_A = np.einsum("kij,lj->kil", R, R[0])  # R_0k = G_k G_0ᵀ
     summary = {
         "duration_s": duration,
         "frames": len(R),
         "success_frames": int(np.sum(np.asarray(chain.status) == 0)),
-        "true_rate_deg_s": float(np.degrees(np.linalg.norm(true_rates(R, rate_hz), axis=1)).mean()),
-        "true_rate_change_deg_s": float(
-            np.degrees(np.linalg.norm(true_rates(R, rate_hz)[-1] - true_rates(R, rate_hz)[0]))
-        ),
+        "true_rate_deg_s": float(np.degrees(np.linalg.norm(true_rate, axis=1)).mean()),
+        "true_rate_change_deg_s": float(np.degrees(np.linalg.norm(true_rate[-1] - true_rate[0]))),
         "chained_measurement_error_deg_final": float(np.degrees(jp.rotation_angle(chain.rotations[-1], truth_A[-1]))),
         "seconds_registration_incl_compile": seconds,
     }
@@ -94,7 +92,7 @@ def main(duration: float = 10.0, seed: int = 0, keyframe_every: int = 25, rate_h
     filters = {}
     for name, (method, options) in FILTERS.items():
         result = jax.jit(lambda ch, f=method, o=options: f(ch, 1 / rate_hz, **o))(chain)
-        filters[name] = {"filter": method.__name__, "options": options, **evaluate(result, R, rate_hz)}
+        filters[name] = {"filter": method.__name__, "options": options, **evaluate(result, true_rate, truth_A, rate_hz)}
         print(name, {k: v for k, v in filters[name].items() if k != "per_second"})
     write_json(
         f"tumble_tracking{suffix}.json",

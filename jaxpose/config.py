@@ -59,8 +59,8 @@ class Config(eqx.Module):
       below 0.7); with 2 cm range noise correct results scored 0.75–0.79.
 
     **Fine stage** (ours, `jaxpose.fine`): point-to-plane least squares on the points near the
-    cutting planes, after the local refine; it brings the paper's pairs from 0.1–0.6° to
-    ≤ 0.03° (`experiments/fine_stage.py`).
+    cutting planes, after the local refine; it brings the paper's noise-free pairs from
+    0.1–0.6° to < 0.0001° (`experiments/fine_stage.py`).
 
     - `fine`: "point_to_plane" or "none" (static).
     - `fine_prev_slab`, `fine_curr_slab`: half-widths of the previous and current slabs

@@ -21,7 +21,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from .camera import Camera
 from .cloud import Cloud
 from .dynamics import propagate_attitude, propagate_cw, quat_to_matrix
-from .rotations import rotation
+from .scenarios import paper_pose
 from .simulate import simulate
 from .targets import CHIBIS_M_INERTIA
 
@@ -61,7 +61,7 @@ class Tumble(eqx.Module):
         return cls(
             position=jnp.array([0.0, 0.0, distance]),
             velocity=jnp.zeros(3),
-            attitude=rotation(*(math.radians(x) for x in (23.5, 23.5, 1.0))),
+            attitude=paper_pose("previous")[0],
             rate=math.radians(rate_deg_s) * axis / jnp.linalg.norm(axis),
             inertia=inertia,
             orbit_rate=orbit_rate(500e3),
@@ -86,7 +86,7 @@ class Tumble(eqx.Module):
         return cls(
             position=jnp.array([0.0, 0.0, 3.0]),
             velocity=jnp.array([0.0, 0.0, 0.01]),
-            attitude=rotation(*(math.radians(x) for x in (23.5, 23.5, 1.0))),
+            attitude=paper_pose("previous")[0],
             rate=rate,
             inertia=jnp.diag(jnp.asarray(CHIBIS_M_INERTIA)),
             orbit_rate=orbit_rate(600e3),

@@ -62,6 +62,11 @@ def _transition(dt, rate_noise, accel_noise, spin_accel_noise):
     return jax.scipy.linalg.block_diag(spin, move), jnp.diag(q)
 
 
+def _where(condition, new, old):
+    """`new` where `condition` holds, else `old`, leaf by leaf (pytrees of one structure)."""
+    return jax.tree.map(lambda a, b: jnp.where(condition, a, b), new, old)
+
+
 def _skew(v):
     return jnp.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
@@ -289,7 +294,7 @@ def chain_estimates(clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_e
             cov = measurement_covariance(problem, config, est.params)
         cov = jnp.where(ok, cov, jnp.eye(6, dtype=origin.dtype))  # finite even when unused
         switch = (k % keyframe_every == 0) & ok
-        key_cloud = jax.tree.map(lambda a, b: jnp.where(switch, a, b), cloud, key_cloud)
+        key_cloud = _where(switch, cloud, key_cloud)
         key_R, key_t = jnp.where(switch, R, key_R), jnp.where(switch, t, key_t)
         out = (R, t, R @ origin + t, est.status, est.rotation, est.translation, cov, switch)
         return (key_cloud, key_R, key_t, R, t), out
@@ -335,7 +340,7 @@ def filter_chain(
         R, point, status = inputs
         filt = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
         updated = filt.update(R, point, noise)
-        filt = jax.tree.map(lambda a, b: jnp.where(status == SUCCESS, a, b), updated, filt)
+        filt = _where(status == SUCCESS, updated, filt)
         return filt, _row(filt)
 
     filt = TrackFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
@@ -360,8 +365,8 @@ def filter_keyframes(
     def step(filt, inputs):
         R_rel, t_rel, cov, status, switched = inputs
         filt = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
-        filt = jax.tree.map(lambda a, b: jnp.where(status == SUCCESS, a, b), filt.update(R_rel, t_rel, cov), filt)
-        filt = jax.tree.map(lambda a, b: jnp.where(switched, a, b), filt.clone(), filt)
+        filt = _where(status == SUCCESS, filt.update(R_rel, t_rel, cov), filt)
+        filt = _where(switched, filt.clone(), filt)
         return filt, _row(filt.now)
 
     filt = KeyframeFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
