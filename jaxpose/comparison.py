@@ -81,6 +81,7 @@ def run_jaxpose(
                 "seconds": seconds,
                 "status": STATUS_NAME[int(est.status)],
                 "hard": float(est.hard),
+                "restarts": int(est.restarts),
                 "inliers": float(est.inliers),
                 "fine_rms_mm": 1000 * float(est.fine_rms),
             }

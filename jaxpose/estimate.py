@@ -17,7 +17,7 @@ from .frame import PlaneFrame
 from .objective import hard_score, soft_score
 from .poses import motion_from_displacement
 from .problem import Problem
-from .search import local_refine, recentred_search
+from .search import local_refine, restarted_search
 
 SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE, AT_BOX_EDGE = 0, 1, 2, 3, 4, 5
 STATUS_TEXT = {
@@ -52,8 +52,11 @@ class Estimate(eqx.Module):
     - `hard`, `soft`: the objectives at `params`.
     - `status`: one of `SUCCESS` … `AT_BOX_EDGE` (`STATUS_TEXT`); `success` is status == 0.
     - `evaluations`: objective evaluations of the global stage; `local_steps`: refine steps.
-    - `history`: best objective value of each CMA-ES generation (first search).
-    - `recentred`: re-centred CMA-ES searches that ran (see `Config.recentre`).
+    - `history`: best objective value of each CMA-ES generation (of the first centred search
+      of the restart that gave the result).
+    - `recentred`: re-centred CMA-ES searches that ran (see `Config.recentre`) in the search
+      that gave the result; `restarts`: independent searches after the first
+      (`Config.restarts`).
     - `global_params`, `global_score`: the global stage's result, before the refine.
     - `inliers`, `fine_rms`: the fine stage's inlier fraction and inlier RMS point-to-plane
       residual (metres) at `params`; NaN when `Config.fine` is "none".
@@ -70,6 +73,7 @@ class Estimate(eqx.Module):
     local_steps: Int[Array, ""]
     history: Float[Array, " G"]
     recentred: Int[Array, ""]
+    restarts: Int[Array, ""]
     global_params: Float[Array, "6"]
     global_score: Float[Array, ""]
     inliers: Float[Array, ""]
@@ -83,7 +87,7 @@ class Estimate(eqx.Module):
 @eqx.filter_jit
 def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Estimate:
     """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
-    glob = recentred_search(problem, config, key)
+    glob = restarted_search(problem, config, key)
     loc = local_refine(problem, config, glob.params)
     p, converged = loc.params, loc.converged
     inliers = rms = jnp.asarray(jnp.nan, problem.d.dtype)
@@ -114,6 +118,7 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         local_steps=jnp.asarray(loc.steps, jnp.int32),
         history=glob.history,
         recentred=jnp.asarray(glob.recentred, jnp.int32),
+        restarts=jnp.asarray(glob.restarts, jnp.int32),
         global_params=glob.params,
         global_score=glob.score,
         inliers=inliers,

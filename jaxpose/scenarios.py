@@ -99,16 +99,28 @@ def rotated_pair(
     return Pair(label or f"{math.degrees(angle):.1f}°", prev, curr, R1, t, R2, t)
 
 
+def capture_pair(i: int, seed: int = 0, low_deg: float = 5.0, high_deg: float = 45.0) -> Pair:
+    """Pair i of the capture set of issue 4: N5 at 5.5 m, uniformly random attitude, rotated
+    by an angle uniform in [`low_deg`, `high_deg`] degrees about a random axis; noise-free.
+    It uses key (seed, i), so the pair is the same in every run and for every method."""
+    k_angle, k_pair = jax.random.split(jax.random.fold_in(jax.random.key(seed), i))
+    angle = math.radians(float(jax.random.uniform(k_angle, minval=low_deg, maxval=high_deg)))
+    return rotated_pair(k_pair, angle, label=f"capture {i}")
+
+
 def capture_pairs(count: int, seed: int = 0, low_deg: float = 5.0, high_deg: float = 45.0) -> list[Pair]:
-    """The capture set of issue 4: N5 at 5.5 m, uniformly random attitude, rotated by an angle
-    uniform in [`low_deg`, `high_deg`] degrees about a random axis; noise-free. Pair i uses
-    key (seed, i), so the set is the same in every run and for every method."""
-    pairs = []
-    for i in range(count):
-        k_angle, k_pair = jax.random.split(jax.random.fold_in(jax.random.key(seed), i))
-        angle = math.radians(float(jax.random.uniform(k_angle, minval=low_deg, maxval=high_deg)))
-        pairs.append(rotated_pair(k_pair, angle, label=f"capture {i}"))
-    return pairs
+    """Pairs 0 … count − 1 of the capture set ([`capture_pair`][])."""
+    return [capture_pair(i, seed, low_deg, high_deg) for i in range(count)]
 
 
-__all__ = ["PAPER_POSES", "PAPER_T", "Pair", "capture_pairs", "paper_pair", "paper_pairs", "paper_pose", "rotated_pair"]
+__all__ = [
+    "PAPER_POSES",
+    "PAPER_T",
+    "Pair",
+    "capture_pair",
+    "capture_pairs",
+    "paper_pair",
+    "paper_pairs",
+    "paper_pose",
+    "rotated_pair",
+]

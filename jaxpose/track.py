@@ -23,8 +23,10 @@ Measurements: the chained (R_0k, R_0k O_n + t_0k).
 
 **Alternative** ([`KeyframeFilter`][], [`filter_keyframes`][]): the keyframe's pose cloned
 into the state and each estimate keyframe → k fused with its own fine-stage covariance.
-Measured worse than the chained filter on the N5 tumble (0.19 against 0.03–0.07 °/s after
-10 s, `experiments/tumble_tracking.py`), so [`track`][] uses the chained filter.
+Measured worse than the chained filter on the N5 tumble (0.10–0.19 against 0.03–0.08 °/s
+after 10 s over four runs, `experiments/tumble_tracking.py`), so [`track`][] uses the
+chained filter. Neither meets 0.05 °/s reliably; registrations from `Config.tracking()`
+(whole-cloud fine stage, about half the error) did not change that.
 """
 
 from __future__ import annotations

@@ -4,12 +4,13 @@ start a few degrees off, against the truth of the simulated pair (float64)."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from conftest import T_PAPER, paper_rotation
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose.fine import fine_cloud, fine_refine, spread_subset
+from jaxpose.fine import fine_cloud, fine_refine, select_current, spread_subset
 
 CONFIG = jp.Config.fast(max_points=5120)
 
@@ -49,12 +50,31 @@ def test_normals_of_a_plane_and_no_normal_at_a_corner():
     assert not np.any(ok & (np.abs(P[:, 0]) < 0.01) & (np.abs(P[:, 2]) < 0.01))
 
 
-def test_fine_stage_recovers_the_displacement_from_a_start_two_degrees_off(paper_clouds):
-    problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], CONFIG)
+# The tracking preset fits the whole cloud instead of the slabs around the cutting planes.
+WHOLE_CLOUD = jp.Config.tracking(max_points=5120, population=16, generations=20, local_steps=40)
+
+
+def test_tracking_preset_fits_every_current_point(paper_clouds):
+    prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
+    counts = {}
+    for name, config in (("slabs", CONFIG), ("whole", WHOLE_CLOUD)):
+        problem = jp.Problem.build(prev, curr, config)
+        _, live = select_current(problem, config, jnp.zeros(6))
+        counts[name] = int(live.sum()), int(problem.fine.valid.sum())
+    valid_curr, valid_prev = int(curr.valid.sum()), int(prev.valid.sum())
+    assert counts["whole"][0] == min(valid_curr, WHOLE_CLOUD.fine_points)
+    assert counts["slabs"][0] < counts["whole"][0] / 2
+    # On the previous side every point is a candidate; the 70 % most planar keep a normal.
+    assert abs(counts["whole"][1] - 0.7 * min(valid_prev, WHOLE_CLOUD.fine_points)) <= 1
+
+
+@pytest.mark.parametrize("config", [CONFIG, WHOLE_CLOUD], ids=["slabs", "whole-cloud"])
+def test_fine_stage_recovers_the_displacement_from_a_start_two_degrees_off(paper_clouds, config):
+    problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config)
     R1, R2 = paper_rotation("previous"), paper_rotation("variant2")
     truth = jp.true_displacement(problem.frame, R1, T_PAPER, R2, T_PAPER)
     start = truth + jnp.array([np.radians(2.0), -np.radians(1.5), np.radians(1.0), 0.01, -0.01, 0.01])
-    result = jax.jit(fine_refine, static_argnums=1)(problem, CONFIG, start)
+    result = jax.jit(fine_refine, static_argnums=1)(problem, config, start)
     err = np.abs(np.asarray(result.params - truth))
     assert bool(result.converged)
     assert np.degrees(err[:3]).max() < 0.05 and 100 * err[3:].max() < 0.05, err

@@ -98,7 +98,7 @@ def test_keyframe_filter_on_exact_relative_measurements_matches_the_motion():
 def test_tracking_a_simulated_tumble_converges():
     # 2 s at 12.5 Hz, noise-free; keyframes every 0.4 s. The fast config keeps it short; its
     # estimates are ≈ 0.5° off, so after 2 s the rate is known to about 1°/s (the accurate
-    # config over 10 s: 0.026°/s, experiments/tumble_tracking.py).
+    # and tracking configs over 10 s: 0.03–0.08°/s, experiments/tumble_tracking.py).
     dt = 0.08
     seq = simulate_sequence(jp.Camera.camcube2(), jp.targets.n5(), Tumble.n5(4.5), 2.0, 1 / dt)
     result = jax.jit(lambda c: track(c, dt, jp.Config.fast(max_points=5120), jax.random.key(0), 5))(seq.clouds)
