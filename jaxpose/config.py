@@ -51,8 +51,8 @@ class Config(eqx.Module):
     - `recentre`: how many more CMA-ES searches may run, each centred on the previous best,
       while that best lies at the edge of its box (static; 0 = one search, as the paper).
       The result is reported as `AT_BOX_EDGE` if the last search still ends at its edge.
-      Under `jax.vmap` every pair pays all the searches (`lax.cond` becomes a select:
-      batches ran 2.7× slower in `jaxpose bench`); set 0 for batched work where that matters.
+      Under `jax.vmap` a batch runs as many searches as its neediest pair (one
+      `lax.while_loop`); set 0 for batched work where that matters.
     - `restarts`: how many more independent CMA-ES searches (each with its own re-centring)
       may run while the best score is below `restart_below`; the best one is kept (static;
       0 = none, the default; `wide()` uses 7). See `jaxpose.search.restarted_search`.

@@ -43,6 +43,11 @@ class GlobalResult(eqx.Module):
     restarts: Array  # how many independent restarts ran after the first search
 
 
+def tree_select(condition, new, old):
+    """`new` where `condition` holds, else `old`, leaf by leaf (pytrees of one structure)."""
+    return jax.tree.map(lambda a, b: jnp.where(condition, a, b), new, old)
+
+
 def box_scale(config: Config) -> Float[Array, "6"]:
     return jnp.array([config.angle_box] * 3 + [config.shift_box] * 3)
 
@@ -149,8 +154,7 @@ def restarted_search(problem: Problem, config: Config, key: PRNGKeyArray) -> Glo
     def search(state):
         best, round_ = state
         new = recentred_search(problem, config, jax.random.fold_in(key, round_))
-        keep = new.score > best.score
-        chosen = jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, best)
+        chosen = tree_select(new.score > best.score, new, best)
         total = best.evaluations + new.evaluations
         return eqx.tree_at(lambda r: (r.evaluations, r.restarts), chosen, (total, round_)), round_ + 1
 

@@ -44,6 +44,7 @@ from .fine import fine_covariance
 from .frame import plane_frame
 from .poses import motion_from_displacement
 from .problem import Problem
+from .search import tree_select
 
 
 def _exp(v):
@@ -62,11 +63,6 @@ def _transition(dt, rate_noise, accel_noise, spin_accel_noise):
     densities = (0.0, rate_noise, spin_accel_noise, 0.0, accel_noise)
     q = jnp.concatenate([jnp.full(3, n**2 * dt) for n in densities])
     return jax.scipy.linalg.block_diag(spin, move), jnp.diag(q)
-
-
-def _where(condition, new, old):
-    """`new` where `condition` holds, else `old`, leaf by leaf (pytrees of one structure)."""
-    return jax.tree.map(lambda a, b: jnp.where(condition, a, b), new, old)
 
 
 def _skew(v):
@@ -296,7 +292,7 @@ def chain_estimates(clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_e
             cov = measurement_covariance(problem, config, est.params)
         cov = jnp.where(ok, cov, jnp.eye(6, dtype=origin.dtype))  # finite even when unused
         switch = (k % keyframe_every == 0) & ok
-        key_cloud = _where(switch, cloud, key_cloud)
+        key_cloud = tree_select(switch, cloud, key_cloud)
         key_R, key_t = jnp.where(switch, R, key_R), jnp.where(switch, t, key_t)
         out = (R, t, R @ origin + t, est.status, est.rotation, est.translation, cov, switch)
         return (key_cloud, key_R, key_t, R, t), out
@@ -342,7 +338,7 @@ def filter_chain(
         R, point, status = inputs
         filt = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
         updated = filt.update(R, point, noise)
-        filt = _where(status == SUCCESS, updated, filt)
+        filt = tree_select(status == SUCCESS, updated, filt)
         return filt, _row(filt)
 
     filt = TrackFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
@@ -367,8 +363,8 @@ def filter_keyframes(
     def step(filt, inputs):
         R_rel, t_rel, cov, status, switched = inputs
         filt = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
-        filt = _where(status == SUCCESS, filt.update(R_rel, t_rel, cov), filt)
-        filt = _where(switched, filt.clone(), filt)
+        filt = tree_select(status == SUCCESS, filt.update(R_rel, t_rel, cov), filt)
+        filt = tree_select(switched, filt.clone(), filt)
         return filt, _row(filt.now)
 
     filt = KeyframeFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
