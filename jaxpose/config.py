@@ -185,12 +185,11 @@ class Config(eqx.Module):
         restarts while the best soft score is below 0.8, and three slices per axis (9 planes).
 
         Why 9 planes: over ±90° the three-plane objective has wrong maxima (a ≈90° turn that
-        lines up flat faces, or a few degrees' slide along a symmetric part). Of the 8 capture
-        pairs that three planes with restarts got wrong (a session check), the three-plane soft
-        objective scored the wrong result above the truth on 4, the nine-plane one on 2; and
-        the capture set went from 84 to 95 found of 100 (README). With nine planes the wrong
-        basins score lower, so restarts leave them more often. 9 planes cost about 3× per
-        evaluation."""
+        lines up flat faces, or a few degrees' slide along a symmetric part) that can score
+        above the truth; nine planes rank some of them below it (a scratch check, not
+        committed), so restarts leave them. With both, the capture set went from 84 to 95
+        found of 100 (`jaxpose compare --set capture`, README). 9 planes score three
+        times the patterns per evaluation."""
         box = {"angle_box": math.radians(90.0), "shift_box": 0.30, "population": 64, "generations": 60}
         box |= {"restarts": 7, "slices": 3}
         return cls(**{**box, **kw})
@@ -202,12 +201,11 @@ class Config(eqx.Module):
         instead of the points near the cutting planes. The search still uses the planes.
 
         Why: with 1 cm range noise the fine stage's error falls as more surface is fitted. On
-        16 pairs 1 s apart of the N5 tumble (4.5 °/s, 5.5 m; a session check with slabs of
-        40·d, which cover the whole target) the rotation error's median was 0.075° against
-        0.139° for the default and 16/16 against 12/16 reported success (the hard score at a
-        better pose is higher), at 1.2× the time (95 s against 80 s for the 16 pairs); on the
-        10 s tumbles of `experiments/tumble_tracking.py` 245 and 241 of 251 frames succeeded
-        against 210 and 220. The search is unchanged, so the capture range is the default's.
+        the 10 s N5 tumbles of `experiments/tumble_tracking.py` (4.5 °/s, 5.5 m) 245 and 241
+        of 251 frames succeeded against 210 and 220 with the default (the hard score at a
+        better pose is higher), and on seed 0 the registration error's median was 0.067°
+        against 0.141°. It is slower per pair (neighbour search over 6144 points; not
+        benchmarked alone). The search is unchanged, so the capture range is the default's.
         """
         whole = {"fine_prev_slab": math.inf, "fine_curr_slab": math.inf, "fine_points": 6144}
         return cls(**{**whole, **kw})
