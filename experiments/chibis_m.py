@@ -106,7 +106,7 @@ def main():
     camera = jp.Camera.camcube2(noise_sigma=NOISE)
     target = jp.targets.chibis_m()
     # The 2.5 m antenna span needs more than the default 128 cells per grid axis.
-    config = jp.Config.accurate(max_points=8192, grid_cells=192, max_cells=1024)
+    config = jp.Config.thorough(max_points=8192, grid_cells=192, max_cells=1024)
     rows, summary = error_vs_range(camera, target, config)
     print(summary)
     rate = angular_rate(camera, target, config)

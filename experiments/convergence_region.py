@@ -24,9 +24,9 @@ from jaxpose.search import LOCAL_SCALE, global_search, local_refine
 OFFSETS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
 TRIALS = 6
 METHODS = {
-    "BFGS": jp.Config.accurate(max_points=5120, local="bfgs", local_steps=200),
-    "NelderMead": jp.Config.accurate(max_points=5120, local="nelder_mead", local_steps=600),
-    "CMA-ES": jp.Config.accurate(max_points=5120, local="none"),
+    "BFGS": jp.Config.thorough(max_points=5120, local="bfgs", local_steps=200),
+    "NelderMead": jp.Config.thorough(max_points=5120, local="nelder_mead", local_steps=600),
+    "CMA-ES": jp.Config.thorough(max_points=5120, local="none"),
 }
 
 

@@ -49,7 +49,7 @@ def main():
              for i in range(NOISY_PAIRS)]  # fmt: skip
     out = {}
     for fine in ("point_to_plane", "none"):
-        config = jp.Config.accurate(max_points=6144, fine=fine)
+        config = jp.Config.thorough(max_points=6144, fine=fine)
         paper = run(paper_pairs(), config, repeats=3)
         noise = run(noisy, config)
         rot = np.array([r["rotation_error_deg"] for r in noise])

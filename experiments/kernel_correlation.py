@@ -30,7 +30,7 @@ SETTINGS = ({"sigma_cells": 0.75, "sel_w": 1.0},)
 
 
 def kernel_score(prev, curr, sigma_cells, sel_w):
-    problem = jp.Problem.build(prev, curr, jp.Config.accurate(max_points=5120))
+    problem = jp.Problem.build(prev, curr, jp.Config.thorough(max_points=5120))
     d = float(problem.d)
     sig2 = (sigma_cells * d) ** 2
     A = problem.frame.to_frame(prev.points)[np.asarray(prev.valid)]

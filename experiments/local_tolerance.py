@@ -16,7 +16,7 @@ from jaxpose.estimate import SUCCESS, estimate_problem
 def main(keys: int = 3):
     rows = []
     for tol in (1e-5, 1e-4, 3e-4):
-        config = jp.Config.accurate(max_points=5120, local_tol=tol)
+        config = jp.Config.thorough(max_points=5120, local_tol=tol)
         runs = []
         for shape in ("n1", "n5"):
             for variant in ("variant 1", "variant 2"):

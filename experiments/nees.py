@@ -28,7 +28,7 @@ from jaxpose.scenarios import paper_pose, rotated_pair
 from jaxpose.uncertainty import curvature
 
 PAIRS = 20  # per set
-CONFIG = jp.Config.accurate(max_points=6144, recentre=0)
+CONFIG = jp.Config.thorough(max_points=6144, recentre=0)
 
 
 def run(offset):

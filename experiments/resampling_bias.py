@@ -22,7 +22,7 @@ SCALE = jnp.array([np.pi / 180] * 3 + [0.01] * 3)
 
 
 def maximiser_offset(prev, curr, truth_fn):
-    problem = jp.Problem.build(prev, curr, jp.Config.accurate(max_points=5120))
+    problem = jp.Problem.build(prev, curr, jp.Config.thorough(max_points=5120))
     truth = truth_fn(problem.frame)
     sol = optx.minimise(
         lambda y, pb: -jp.soft_score(y * SCALE, pb),
@@ -61,7 +61,7 @@ def main():
             }
             rows.append(row)
             print(row)
-    write_json("resampling_bias.json", {"objective": "soft (accurate config)", "rows": rows})
+    write_json("resampling_bias.json", {"objective": "soft (thorough config)", "rows": rows})
 
 
 if __name__ == "__main__":

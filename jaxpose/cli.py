@@ -93,7 +93,9 @@ def sweep(
         "rotation,noise,distance,dropout"
     ),
     trials: Annotated[int, typer.Option(help="Random pairs per value.")] = 10,
-    preset: Annotated[str, typer.Option(help="Config preset: accurate, fast, wide or paper.")] = "accurate",
+    preset: Annotated[
+        str, typer.Option(help="Config preset: accurate, thorough, fast, wide, tracking or paper.")
+    ] = "accurate",
     seed: Annotated[int, typer.Option(help="PRNG seed of the pairs and the search.")] = 0,
     out: Annotated[Path, typer.Option(help="Folder for sweep_<preset>.{json,png}.")] = Path("results"),
     distributed: Annotated[
@@ -221,7 +223,14 @@ def bench(
 def _preset(name: str):
     from . import Config
 
-    presets = {"accurate": Config.accurate, "fast": Config.fast, "paper": Config.paper, "wide": Config.wide}
+    presets = {
+        "accurate": Config.accurate,
+        "thorough": Config.thorough,
+        "fast": Config.fast,
+        "paper": Config.paper,
+        "wide": Config.wide,
+        "tracking": Config.tracking,
+    }
     if name not in presets:
         raise typer.BadParameter(f"unknown preset {name!r}; choose one of {', '.join(presets)}.")
     return presets[name]
@@ -242,7 +251,9 @@ def _enable_compile_cache() -> None:
 def estimate(
     prev: Annotated[Path, typer.Argument(help="Previous cloud (PLY, PCD, NPY, NPZ or CSV; camera frame, metres).")],
     curr: Annotated[Path, typer.Argument(help="Current cloud, same formats.")],
-    preset: Annotated[str, typer.Option(help="Config preset: accurate, fast or paper.")] = "accurate",
+    preset: Annotated[
+        str, typer.Option(help="Config preset: accurate, thorough, fast, wide, tracking or paper.")
+    ] = "accurate",
     seed: Annotated[int, typer.Option(help="PRNG seed of the global search.")] = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of a table.")] = False,
 ):

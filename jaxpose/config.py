@@ -1,12 +1,15 @@
 """Configuration of the method: a pytree, with the fields that fix array shapes static.
 
 Lengths in metres, angles in radians. Presets: [`Config.paper`][] (the paper's setting:
-3 planes, hard objective, ±20°/±0.10 m box), [`Config.accurate`][] (default),
-[`Config.wide`][] (capture, ±90°) and [`Config.fast`][] (tests and real-time use).
+3 planes, hard objective, ±20°/±0.10 m box), [`Config.accurate`][] (default: a coarse-pattern
+search, one frame period of a 25 Hz camera on 2 CPU cores), [`Config.thorough`][] (the search
+on the full patterns, 14× slower), [`Config.wide`][] (capture, ±90°), [`Config.tracking`][]
+and [`Config.fast`][] (tests and real-time use).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Literal
 
@@ -29,6 +32,9 @@ class Config(eqx.Module):
     - `max_points`: capacity for the current cloud's valid points (static). `None` (default)
       sizes it from the data at the Python boundary (the valid count rounded up to 512) and
       uses the full cloud size under jit; fewer slots make scoring faster.
+    - `max_prev_points`: capacity for the previous cloud's valid points (static), sized like
+      `max_points`. The previous points are compacted to it once; passes over them are then
+      shorter than over the whole frame.
     - `max_cells`: capacity for the filled cells of one previous pattern (static).
 
     **Soft objective** (ours):
@@ -37,6 +43,16 @@ class Config(eqx.Module):
     - `select_width`: width of the soft selection edge, as a fraction of d (→ 0: hard slab).
 
     **Search** (issue 4):
+
+    - `coarse`: the global search scores a second, coarse problem built with cells of
+      `coarse`·d (selection half-width too) from `coarse_points` current points thinned evenly
+      (static; 1 = search on the full problem, as the paper). Why: one evaluation of the
+      full soft objective costs ≈ 0.36 ms on 2 CPU cores (≈ 4800 points × 3 planes × 4
+      cells, a 3 × 130² grid); the coarse one (3d, 512 points) ≈ 0.035 ms, and its wider
+      cells widen each basin, so a smaller CMA-ES finds it. The local refine and the fine
+      stage then work on the full problem. `experiments/bench_estimate.py` compares the
+      default with `thorough()` (the full problem).
+    - `coarse_points`: current points of the coarse problem (static).
 
     - `angle_box`, `shift_box`: half-widths of the search box for each angle (radians) and
       each translation component (metres); paper: 20° and 0.10 m.
@@ -77,6 +93,12 @@ class Config(eqx.Module):
       (smallest / middle scatter eigenvalue of the neighbourhood): edges and corners go.
     - `fine_points`: capacity of each side (static); more points are thinned evenly.
     - `fine_neighbours`: neighbours of a normal fit (static).
+    - `fine_guard`: the fine stage's result is dropped, and the local refine's kept, when its
+      hard score is lower than the refine's by more than this (0–1; 1 = never dropped). On
+      the random views of `experiments/bench_estimate.py` the default's fine stage (1024
+      points a side) once slid 24 cm along a face, its hard score falling from ≈ 0.9 to 0.6.
+      `thorough()`, `wide()` and `tracking()` keep 1, as when their committed results were
+      measured.
     - `fine_rounds`: most match-then-solve rounds (static); `fine_steps`, `fine_tol`: LM's
       step limit per round and rtol = atol in units of 1° / 1 cm (static).
 
@@ -95,14 +117,17 @@ class Config(eqx.Module):
     min_score: float = 0.7
     max_range: float = 1000.0
     slices: int = eqx.field(static=True, default=1)
+    coarse: int = eqx.field(static=True, default=3)
+    coarse_points: int = eqx.field(static=True, default=512)
     grid_cells: int = eqx.field(static=True, default=128)
     max_points: int | None = eqx.field(static=True, default=None)
+    max_prev_points: int | None = eqx.field(static=True, default=None)
     max_cells: int = eqx.field(static=True, default=512)
     global_objective: Literal["hard", "soft"] = eqx.field(static=True, default="soft")
-    population: int = eqx.field(static=True, default=32)
-    generations: int = eqx.field(static=True, default=40)
+    population: int = eqx.field(static=True, default=16)
+    generations: int = eqx.field(static=True, default=16)
     local: Literal["bfgs", "nelder_mead", "none"] = eqx.field(static=True, default="bfgs")
-    local_steps: int = eqx.field(static=True, default=100)
+    local_steps: int = eqx.field(static=True, default=8)
     local_tol: float = eqx.field(static=True, default=3e-4)
     recentre: int = eqx.field(static=True, default=2)
     restarts: int = eqx.field(static=True, default=0)
@@ -111,16 +136,22 @@ class Config(eqx.Module):
     fine_curr_slab: float = 2.0
     fine_inlier: float = 0.03
     fine_planar_fraction: float = 0.7
+    fine_guard: float = 0.05
     fine: Literal["point_to_plane", "none"] = eqx.field(static=True, default="point_to_plane")
-    fine_points: int = eqx.field(static=True, default=2048)
+    fine_points: int = eqx.field(static=True, default=896)
     fine_neighbours: int = eqx.field(static=True, default=20)
     fine_rounds: int = eqx.field(static=True, default=20)
     fine_steps: int = eqx.field(static=True, default=20)
     fine_tol: float = eqx.field(static=True, default=1e-6)
 
     def __check_init__(self):
-        if self.slices < 1 or self.grid_cells < 3 or (self.max_points or 1) < 1 or self.max_cells < 1:
-            raise ValueError("slices, grid_cells, max_points and max_cells must be positive.")
+        if self.coarse < 1 or self.coarse_points < 10:
+            raise ValueError(
+                f"Config.coarse must be ≥ 1 and coarse_points ≥ 10, got {self.coarse!r}, {self.coarse_points!r}."
+            )
+        capacities = (self.slices, self.grid_cells - 2, self.max_points or 1, self.max_prev_points or 1, self.max_cells)
+        if min(capacities) < 1:
+            raise ValueError("slices, grid_cells, max_points, max_prev_points and max_cells must be positive.")
         if self.global_objective not in ("hard", "soft"):
             raise ValueError(f"global_objective must be 'hard' or 'soft', got {self.global_objective!r}.")
         if self.local not in ("bfgs", "nelder_mead", "none"):
@@ -151,7 +182,7 @@ class Config(eqx.Module):
                 raise ValueError(f"Config.{name} must be in ({lo:g}, {hi:g}], got {value!r} (metres/radians).")
         if isinstance(self.extension, int | float) and not self.extension >= 0:
             raise ValueError(f"Config.extension must be ≥ 0, got {self.extension!r}.")
-        for name in ("min_score", "restart_below"):
+        for name in ("min_score", "restart_below", "fine_guard"):
             value = getattr(self, name)
             if isinstance(value, int | float) and not 0 <= value <= 1:
                 raise ValueError(f"Config.{name} must be in [0, 1], got {value!r}.")
@@ -165,18 +196,43 @@ class Config(eqx.Module):
         K = self.slices
         return tuple((j, 2.0 * (k - (K - 1) / 2)) for j in range(3) for k in range(K))
 
+    @property
+    def coarse_config(self) -> Config:
+        """The settings of the coarse problem of the search (see `coarse`): cells and selection
+        of `coarse`·d, a grid of ⌈C / coarse⌉ + 2 cells, `coarse_points` current points, no fine
+        stage."""
+        return dataclasses.replace(
+            self,
+            d=self.d * self.coarse,
+            grid_cells=-(-self.grid_cells // self.coarse) + 2,
+            max_points=self.coarse_points,
+            fine="none",
+            coarse=1,
+        )
+
     @classmethod
     def paper(cls, **kw) -> Config:
         """The paper's setting: three planes, d = 0.026 m, the hard objective, one search in the
-        box, no local refine and no fine stage."""
-        paper = {"global_objective": "hard", "local": "none", "fine": "none", "recentre": 0}
+        box on the full patterns, no local refine and no fine stage."""
+        paper = {"global_objective": "hard", "local": "none", "fine": "none", "recentre": 0, "coarse": 1}
         paper |= {"population": 48, "generations": 60}
         return cls(**{**paper, **kw})
 
     @classmethod
     def accurate(cls, **kw) -> Config:
-        """The default: CMA-ES on the soft objective, then BFGS on the soft objective."""
+        """The default: CMA-ES (16 × 16) on the soft objective of the coarse problem (cells of
+        3d, 512 current points), at most 8 BFGS steps on the full soft objective, then the
+        fine stage on 896 near-plane points a side. Sized for one frame period of a 25 Hz
+        camera on 2 CPU cores (`experiments/bench_estimate.py` measures it)."""
         return cls(**kw)
+
+    @classmethod
+    def thorough(cls, **kw) -> Config:
+        """The default before the coarse search (kept, and the base of `wide()` and
+        `tracking()`): CMA-ES (32 × 40) on the full soft objective, up to 100 BFGS steps,
+        2048 fine-stage points a side, no fine guard. About 15× slower than `accurate()`;
+        `experiments/bench_estimate.py` compares their accuracy on random views."""
+        return cls(**{**THOROUGH, **kw})
 
     @classmethod
     def wide(cls, **kw) -> Config:
@@ -192,7 +248,7 @@ class Config(eqx.Module):
         times the patterns per evaluation."""
         box = {"angle_box": math.radians(90.0), "shift_box": 0.30, "population": 64, "generations": 60}
         box |= {"restarts": 7, "slices": 3}
-        return cls(**{**box, **kw})
+        return cls(**{**THOROUGH, **box, **kw})
 
     @classmethod
     def tracking(cls, **kw) -> Config:
@@ -208,9 +264,22 @@ class Config(eqx.Module):
         benchmarked alone). The search is unchanged, so the capture range is the default's.
         """
         whole = {"fine_prev_slab": math.inf, "fine_curr_slab": math.inf, "fine_points": 6144}
-        return cls(**{**whole, **kw})
+        return cls(**{**THOROUGH, **whole, **kw})
 
     @classmethod
     def fast(cls, **kw) -> Config:
-        """Small and quick: for tests and real-time use."""
-        return cls(**{"population": 16, "generations": 20, "local_steps": 40, **kw})
+        """For tests and real-time use: since the coarse search the default is sized for one
+        frame period (40 ms), so this is the default's settings. A smaller search (12
+        generations, 5 BFGS steps) left N5 variant 2 4.3 cm off in translation."""
+        return cls(**kw)
+
+
+THOROUGH = {
+    "coarse": 1,
+    "population": 32,
+    "generations": 40,
+    "local_steps": 100,
+    "fine_points": 2048,
+    "fine_guard": 1.0,
+}
+"""The settings of [`Config.thorough`][] that differ from the default."""

@@ -59,7 +59,9 @@ class Estimate(eqx.Module):
       (`Config.restarts`).
     - `global_params`, `global_score`: the global stage's result, before the refine.
     - `inliers`, `fine_rms`: the fine stage's inlier fraction and inlier RMS point-to-plane
-      residual (metres) at `params`; NaN when `Config.fine` is "none".
+      residual (metres) at its result; NaN when `Config.fine` is "none".
+    - `fine_kept`: whether `params` is the fine stage's result (False: no fine stage, or its
+      hard score fell more than `Config.fine_guard` below the refine's, which then stands).
     """
 
     params: Float[Array, "6"]
@@ -78,6 +80,7 @@ class Estimate(eqx.Module):
     global_score: Float[Array, ""]
     inliers: Float[Array, ""]
     fine_rms: Float[Array, ""]
+    fine_kept: Bool[Array, ""]
 
     @property
     def success(self) -> Bool[Array, ""]:
@@ -91,11 +94,19 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
     loc = local_refine(problem, config, glob.params)
     p, converged = loc.params, loc.converged
     inliers = rms = jnp.asarray(jnp.nan, problem.d.dtype)
+    fine_kept = jnp.asarray(False)
     if config.fine != "none":
         fine = fine_refine(problem, config, loc.params)
-        # The result is the fine stage's: its convergence is the one that counts (BFGS on the
-        # soft objective may stop on a kink short of its tolerance and not matter).
-        p, converged, inliers, rms = fine.params, fine.converged, fine.inliers, fine.rms
+        # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
+        # free it can slide along it (24 cm on a noise-free view with 1024 points a side,
+        # experiments/bench_estimate.py). Its result is kept unless the method's reference
+        # score drops by more than `fine_guard`; then the refine's result stands.
+        fine_kept = hard_score(fine.params, problem) >= hard_score(loc.params, problem) - config.fine_guard
+        # When kept, the fine stage's convergence is the one that counts (BFGS on the soft
+        # objective may stop on a kink short of its tolerance and not matter).
+        p = jnp.where(fine_kept, fine.params, p)
+        converged = jnp.where(fine_kept, fine.converged, converged)
+        inliers, rms = fine.inliers, fine.rms
     hard = hard_score(p, problem)
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
     # First matching condition wins: the order is the priority of the statuses.
@@ -123,6 +134,7 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         global_score=glob.score,
         inliers=inliers,
         fine_rms=rms,
+        fine_kept=fine_kept,
     )
 
 

@@ -26,7 +26,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._checks import is_concrete
 from .cloud import Cloud
 from .config import Config
-from .fine import FineCloud, fine_cloud
+from .fine import FineCloud, fine_cloud, spread_subset
 from .frame import FRAME_STATUS_TEXT, PlaneFrame, plane_frame
 
 # Bits of Problem.status.
@@ -35,6 +35,7 @@ PROBLEM_GRID_OVERFLOW = 2  # a previous pattern's grid exceeded grid_cells; oute
 PROBLEM_CELLS_OVERFLOW = 4  # a previous pattern filled more than max_cells cells
 PROBLEM_POINTS_OVERFLOW = 8  # the current cloud has more than max_points valid points
 PROBLEM_FEW_CURRENT = 16  # the current cloud has fewer valid points than frame.MIN_POINTS
+PROBLEM_PREV_OVERFLOW = 32  # the previous cloud has more than max_prev_points valid points
 
 NEIGHBOUR_OFFSETS = tuple((a, b) for a in (-1, 0, 1) for b in (-1, 0, 1))
 """The 3 × 3 neighbourhood Q, as (Δa, Δb) in cells."""
@@ -62,8 +63,11 @@ class Problem(eqx.Module):
     - `prev_selected`, `prev_filled`: `(P,)` selected points and filled cells per plane.
     - `fine`: the previous side of the fine stage ([`jaxpose.fine.FineCloud`][]; one empty
       slot when `Config.fine` is "none").
-    - `status`: bit flags `PROBLEM_*` (0 = usable).
+    - `status`: bit flags `PROBLEM_*` (0 = usable), the coarse problem's included.
     - `planes`, `grid_cells`: static.
+    - `coarse`: the coarse problem the global search scores (`Config.coarse` > 1: cells of
+      coarse·d, `coarse_points` current points thinned evenly, no fine stage; same frame n),
+      or None.
     """
 
     frame: PlaneFrame
@@ -87,6 +91,12 @@ class Problem(eqx.Module):
     status: Int[Array, ""]
     planes: tuple[tuple[int, float], ...] = eqx.field(static=True)
     grid_cells: int = eqx.field(static=True)
+    coarse: Problem | None = None
+
+    @property
+    def search_problem(self) -> Problem:
+        """The problem the global search scores: `coarse` if there is one, else this one."""
+        return self if self.coarse is None else self.coarse
 
     @property
     def num_planes(self) -> int:
@@ -133,17 +143,25 @@ class Problem(eqx.Module):
             prev.check("previous cloud")
             curr.check("current cloud")
             _check_range(prev, curr, config)
-        if config.max_points is None:
-            if is_concrete(curr):
-                n_valid = int(jnp.sum(curr.valid))
-                capacity = max(512, -(-n_valid // 512) * 512)
-            else:
-                capacity = curr.points.shape[-2]
-            config = dataclasses.replace(config, max_points=capacity)
-        problem = _build(prev, curr, config)
+        config = dataclasses.replace(
+            config,
+            max_points=config.max_points or _capacity(curr),
+            max_prev_points=config.max_prev_points or _capacity(prev),
+        )
+        # Traced inputs (jit, vmap) get one compiled call: op by op, a build under `jax.vmap`
+        # crashed XLA:CPU (segfault, JAX 0.10.2). Concrete ones run op by op, no compile.
+        problem = (_build if is_concrete(prev, curr) else _build_compiled)(prev, curr, config)
         if is_concrete(problem):
             raise_for_status(problem)
         return problem
+
+
+def _capacity(cloud: Cloud) -> int:
+    """A capacity for the cloud's valid points: their count rounded up to 512 at the Python
+    boundary, the whole cloud under jit."""
+    if is_concrete(cloud):
+        return max(512, -(-int(jnp.sum(cloud.valid)) // 512) * 512)
+    return cloud.points.shape[-2]
 
 
 def _check_range(prev: Cloud, curr: Cloud, config: Config) -> None:
@@ -180,6 +198,8 @@ def raise_for_status(problem: Problem) -> None:
         raise ValueError("current cloud: fewer than 10 valid points.")
     if status & PROBLEM_POINTS_OVERFLOW:
         raise ValueError("current cloud has more valid points than Config.max_points; raise it.")
+    if status & PROBLEM_PREV_OVERFLOW:
+        raise ValueError("previous cloud has more valid points than Config.max_prev_points; raise it.")
     if status & PROBLEM_GRID_OVERFLOW:
         raise ValueError("a previous pattern is larger than the grid; raise Config.grid_cells (or d).")
     if status & PROBLEM_CELLS_OVERFLOW:
@@ -204,20 +224,53 @@ def round_half_up(x) -> Array:
 def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
     prev = Cloud(prev.masked_points, prev.valid)
     curr = Cloud(curr.masked_points, curr.valid)
-    dtype = prev.points.dtype
     frame = plane_frame(prev)
+    # The previous points in frame n, compacted to their valid ones: every later pass over them
+    # (patterns at each level, the fine stage's side) then touches max_prev_points rows, not the
+    # whole frame (41 616 pixels for 4 194 points on the paper's N5). Rows are gathered after
+    # the transform and kept in order, so the patterns and the fine cloud are the same.
+    n_prev = jnp.sum(prev.valid)
+    (keep,) = jnp.nonzero(prev.valid, size=config.max_prev_points, fill_value=0)
+    live = jnp.arange(config.max_prev_points) < n_prev
+    A = jnp.where(live[:, None], frame.to_frame(prev.points)[keep], 0.0)
+    status = jnp.where(frame.ok, 0, PROBLEM_FRAME) | jnp.where(
+        n_prev > config.max_prev_points, PROBLEM_PREV_OVERFLOW, 0
+    )
+    coarse = None
+    if config.coarse > 1:
+        # Thinned evenly over the valid points (in scan order: evenly over the image).
+        idx, sub = spread_subset(curr.valid, config.coarse_points)
+        thinned = Cloud(curr.points[idx], sub & curr.valid[idx])
+        coarse = _patterns(frame, A, live, thinned, config.coarse_config, status)
+        status = status | coarse.status
+    return _patterns(frame, A, live, curr, config, status, coarse)
+
+
+_build_compiled = eqx.filter_jit(_build)
+
+
+def _patterns(
+    frame: PlaneFrame,
+    A: Float[Array, "N 3"],
+    prev_valid: Bool[Array, " N"],
+    curr: Cloud,
+    config: Config,
+    status: Int[Array, ""],
+    coarse: Problem | None = None,
+) -> Problem:
+    """The problem at one level: previous points A (frame n) and their mask, the current cloud
+    (frame c), cells of `config.d`."""
+    dtype = A.dtype
     d = jnp.asarray(config.d, dtype)
     C = config.grid_cells
     planes = config.planes()
-    A = frame.to_frame(prev.points)
 
     lo, ext, size, selected, filled_n, fields_r, fields_rm = [], [], [], [], [], [], []
     cells, krs, plane_ids, kr_sums = [], [], [], []
-    status = jnp.where(frame.ok, 0, PROBLEM_FRAME)
     for i, (j, offset) in enumerate(planes):
         h = A[:, j] - offset * d
         uv = (A[:, (j + 1) % 3], A[:, (j + 2) % 3])
-        sel = prev.valid & (jnp.abs(h) <= d)
+        sel = prev_valid & (jnp.abs(h) <= d)
         any_sel = jnp.any(sel)
         lo_i = [jnp.where(any_sel, jnp.min(jnp.where(sel, c, jnp.inf)), 0.0) for c in uv]
         hi_i = [jnp.where(any_sel, jnp.max(jnp.where(sel, c, -jnp.inf)), 0.0) for c in uv]
@@ -287,8 +340,9 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
         rm_field=flat(fields_rm),
         prev_selected=jnp.stack(selected),
         prev_filled=jnp.stack(filled_n),
-        fine=fine_cloud(A, prev.valid, config, planes, d),
+        fine=fine_cloud(A, prev_valid, config, planes, d),
         status=jnp.asarray(status, jnp.int32),
         planes=planes,
         grid_cells=C,
+        coarse=coarse,
     )

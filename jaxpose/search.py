@@ -53,7 +53,9 @@ def box_scale(config: Config) -> Float[Array, "6"]:
 
 
 def global_search(problem: Problem, config: Config, key: PRNGKeyArray, start=None) -> GlobalResult:
-    """CMA-ES (evosax) over the search box centred on `start` (default p = 0)."""
+    """CMA-ES (evosax) over the search box centred on `start` (default p = 0), scoring
+    `problem.search_problem` (the coarse problem where `Config.coarse` > 1)."""
+    scored = problem.search_problem
     dtype = problem.d.dtype
     scale = box_scale(config).astype(dtype)
     centre = jnp.zeros(6, dtype) if start is None else jnp.asarray(start, dtype)
@@ -69,7 +71,7 @@ def global_search(problem: Problem, config: Config, key: PRNGKeyArray, start=Non
         state = carry
         k_ask, k_tell = jax.random.split(k)
         ys, state = es.ask(k_ask, state, params)
-        f = score_batch(jax.vmap(to_p)(ys), problem, config.global_objective)
+        f = score_batch(jax.vmap(to_p)(ys), scored, config.global_objective)
         state, _ = es.tell(k_tell, ys, -f, state, params)
         return state, jnp.max(f)
 

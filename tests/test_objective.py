@@ -210,3 +210,12 @@ def test_non_finite_or_misshapen_clouds_raise(paper_clouds):
         jp.Problem.build(jp.Cloud(bad_points, good.valid.at[100].set(True)), good)
     with pytest.raises(ValueError, match="current cloud"):
         jp.Problem.build(good, jp.Cloud(good.points[:, :2], good.valid))
+
+
+def test_capacities_too_small_for_the_clouds_raise_naming_the_field(paper_clouds):
+    """The previous cloud is compacted to Config.max_prev_points valid points (4 194 here)."""
+    prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
+    with pytest.raises(ValueError, match="max_prev_points"):
+        jp.Problem.build(prev, curr, jp.Config(max_prev_points=512))
+    with pytest.raises(ValueError, match="max_points"):
+        jp.Problem.build(prev, curr, jp.Config(max_points=512))
