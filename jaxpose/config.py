@@ -3,7 +3,7 @@
 Lengths in metres, angles in radians. Presets: [`Config.paper`][] (the paper's setting:
 3 planes, hard objective, ±20°/±0.10 m box), [`Config.accurate`][] (default: a coarse-pattern
 search, one frame period of a 25 Hz camera on 2 CPU cores), [`Config.thorough`][] (the search
-on the full patterns, 14× slower), [`Config.wide`][] (capture, ±90°), [`Config.tracking`][]
+on the full patterns, ≈ 17× slower), [`Config.wide`][] (capture, ±90°), [`Config.tracking`][]
 and [`Config.fast`][] (tests and real-time use).
 """
 
@@ -230,7 +230,7 @@ class Config(eqx.Module):
     def thorough(cls, **kw) -> Config:
         """The default before the coarse search (kept, and the base of `wide()` and
         `tracking()`): CMA-ES (32 × 40) on the full soft objective, up to 100 BFGS steps,
-        2048 fine-stage points a side, no fine guard. About 15× slower than `accurate()`;
+        2048 fine-stage points a side, no fine guard. About 17× slower than `accurate()`;
         `experiments/bench_estimate.py` compares their accuracy on random views."""
         return cls(**{**THOROUGH, **kw})
 
@@ -252,16 +252,16 @@ class Config(eqx.Module):
 
     @classmethod
     def tracking(cls, **kw) -> Config:
-        """For frame-to-frame registration of noisy clouds (`jaxpose.track`): the default,
+        """For frame-to-frame registration of noisy clouds (`jaxpose.track`): `thorough()`
         with the fine stage on the whole cloud (slabs of infinite width, 6144 points a side)
         instead of the points near the cutting planes. The search still uses the planes.
 
         Why: with 1 cm range noise the fine stage's error falls as more surface is fitted. On
         the 10 s N5 tumbles of `experiments/tumble_tracking.py` (4.5 °/s, 5.5 m) 245 and 241
-        of 251 frames succeeded against 210 and 220 with the default (the hard score at a
-        better pose is higher), and on seed 0 the registration error's median was 0.067°
-        against 0.141°. It is slower per pair (neighbour search over 6144 points; not
-        benchmarked alone). The search is unchanged, so the capture range is the default's.
+        of 251 frames succeeded against 210 and 220 with `thorough()`, then the default (the
+        hard score at a better pose is higher), and on seed 0 the registration error's median
+        was 0.067° against 0.141°. It is slower per pair (neighbour search over 6144 points; not
+        benchmarked alone). The search is `thorough()`'s, and so is the capture range.
         """
         whole = {"fine_prev_slab": math.inf, "fine_curr_slab": math.inf, "fine_points": 6144}
         return cls(**{**THOROUGH, **whole, **kw})

@@ -94,6 +94,7 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
     loc = local_refine(problem, config, glob.params)
     p, converged = loc.params, loc.converged
     inliers = rms = jnp.asarray(jnp.nan, problem.d.dtype)
+    hard = hard_score(p, problem)
     fine_kept = jnp.asarray(False)
     if config.fine != "none":
         fine = fine_refine(problem, config, loc.params)
@@ -101,13 +102,14 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         # free it can slide along it (24 cm on a noise-free view with 1024 points a side,
         # experiments/bench_estimate.py). Its result is kept unless the method's reference
         # score drops by more than `fine_guard`; then the refine's result stands.
-        fine_kept = hard_score(fine.params, problem) >= hard_score(loc.params, problem) - config.fine_guard
+        fine_hard = hard_score(fine.params, problem)
+        fine_kept = fine_hard >= hard - config.fine_guard
         # When kept, the fine stage's convergence is the one that counts (BFGS on the soft
         # objective may stop on a kink short of its tolerance and not matter).
         p = jnp.where(fine_kept, fine.params, p)
         converged = jnp.where(fine_kept, fine.converged, converged)
+        hard = jnp.where(fine_kept, fine_hard, hard)
         inliers, rms = fine.inliers, fine.rms
-    hard = hard_score(p, problem)
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
     # First matching condition wins: the order is the priority of the statuses.
     status = jnp.select(

@@ -45,7 +45,7 @@ def test_paper_pairs_within_issue_bounds(paper_clouds, shape, variant):
     assert angle_deg <= 0.001 and shift_cm <= 0.001, (angle_deg, shift_cm)  # measured: < 5e-5° in float32
     # Noise-free: an exact fit. `inliers` is the share of current points within 3 cm of a planar
     # previous point: 0.68–0.85 with the default's 896 points a side (0.75+ with 2048).
-    assert float(est.inliers) > 0.6 and float(est.fine_rms) < 1e-5 and bool(est.fine_kept)
+    assert float(est.inliers) > 0.65 and float(est.fine_rms) < 1e-5 and bool(est.fine_kept)
 
 
 def test_recovers_the_paper_variant2_displacement(n5_estimate):

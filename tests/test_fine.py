@@ -81,6 +81,6 @@ def test_fine_stage_recovers_the_displacement_from_a_start_two_degrees_off(paper
     # Noise-free planar faces: the matched residuals vanish at the optimum (measured 0.00 mm);
     # 70 % of the previous points keep a normal, so some current points have no match within
     # 3 cm: 0.69 of them with the default's 896 points a side (0.75+ with 2048).
-    assert float(result.inliers) > 0.6 and float(result.rms) < 1e-5
+    assert float(result.inliers) > 0.65 and float(result.rms) < 1e-5
     # The start was more than 1° off, so the recovery above is the stage's work.
     assert np.degrees(np.abs(np.asarray(start - truth))[:3]).max() > 1.0
