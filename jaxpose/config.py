@@ -46,10 +46,10 @@ class Config(eqx.Module):
 
     - `coarse`: the global search scores a second, coarse problem built with cells of
       `coarse`·d (selection half-width too) from `coarse_points` current points thinned evenly
-      (static; 1 = search on the full problem, as the paper). Why: one evaluation of the
-      full soft objective costs ≈ 0.36 ms on 2 CPU cores (≈ 4800 points × 3 planes × 4
-      cells, a 3 × 130² grid); the coarse one (3d, 512 points) ≈ 0.035 ms, and its wider
-      cells widen each basin, so a smaller CMA-ES finds it. The local refine and the fine
+      (static; 1 = search on the full problem, as the paper). Why: an evaluation's work
+      scales with the current points scored (≈ 4 800 on the paper's N5 frames against 512)
+      and the grid (3 × 130² cells against 3 × 47²), and the coarse problem's wider cells
+      widen each basin, so a smaller CMA-ES finds it. The local refine and the fine
       stage then work on the full problem. `experiments/bench_estimate.py` compares the
       default with `thorough()` (the full problem).
     - `coarse_points`: current points of the coarse problem (static).
@@ -95,8 +95,8 @@ class Config(eqx.Module):
     - `fine_neighbours`: neighbours of a normal fit (static).
     - `fine_guard`: the fine stage's result is dropped, and the local refine's kept, when its
       hard score is lower than the refine's by more than this (0–1; 1 = never dropped). On
-      the random views of `experiments/bench_estimate.py` the default's fine stage (1024
-      points a side) once slid 24 cm along a face, its hard score falling from ≈ 0.9 to 0.6.
+      a random view of `experiments/bench_estimate.py` (a development run with 1024 points a
+      side) the fine stage slid 24 cm along a face, its hard score falling from ≈ 0.9 to 0.6.
       `thorough()`, `wide()` and `tracking()` keep 1, as when their committed results were
       measured.
     - `fine_rounds`: most match-then-solve rounds (static); `fine_steps`, `fine_tol`: LM's
@@ -270,7 +270,8 @@ class Config(eqx.Module):
     def fast(cls, **kw) -> Config:
         """For tests and real-time use: since the coarse search the default is sized for one
         frame period (40 ms), so this is the default's settings. A smaller search (12
-        generations, 5 BFGS steps) left N5 variant 2 4.3 cm off in translation."""
+        generations, 5 BFGS steps) left N5 variant 2 centimetres off in translation in a
+        scratch check, and the tests run this preset on the paper's pairs."""
         return cls(**kw)
 
 

@@ -99,8 +99,8 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
     if config.fine != "none":
         fine = fine_refine(problem, config, loc.params)
         # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
-        # free it can slide along it (24 cm on a noise-free view with 1024 points a side,
-        # experiments/bench_estimate.py). Its result is kept unless the method's reference
+        # free it can slide along it (24 cm on a noise-free view with 1024 points a side, in a
+        # development run of experiments/bench_estimate.py). Its result is kept unless the method's reference
         # score drops by more than `fine_guard`; then the refine's result stands.
         fine_hard = hard_score(fine.params, problem)
         fine_kept = fine_hard >= hard - config.fine_guard

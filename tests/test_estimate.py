@@ -121,7 +121,8 @@ def test_the_search_scores_a_coarse_problem_of_the_same_frame(paper_clouds):
 
 def test_recentred_search_reaches_beyond_the_box_and_flags_its_edge(paper_clouds):
     # The N5 variant-2 truth has an angle of about 11.7° in frame n: outside a ±8° box. On the
-    # full patterns (coarse=1): the default's coarse ones (3d cells) end ≈ 1–2.5° from the truth.
+    # full patterns (coarse=1): the default's coarse ones (cells three times as wide) resolve
+    # the optimum more coarsely, which the refine then corrects.
     full = jp.Config.fast(max_points=5120, coarse=1)
     problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], full)
     truth = jp.true_displacement(
