@@ -28,7 +28,8 @@ from jaxpose.scenarios import paper_pose, rotated_pair
 from jaxpose.uncertainty import curvature
 
 PAIRS = 20  # per set
-CONFIG = jp.Config.thorough(max_points=6144, recentre=0)
+# The centroid anchor of `Config.tracking()`, whose registrations the scale is used for.
+CONFIG = jp.Config.thorough(max_points=6144, recentre=0, fine_anchor="centroid")
 
 
 def run(offset):

@@ -17,26 +17,24 @@ import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 from _common import RESULTS
-from tumble_tracking import FILTERS, true_rates
+from tumble_tracking import FILTERS, load_chain, true_rates
 
 from jaxpose.figures import save_figure
 from jaxpose.sequence import Tumble, tumble_poses
-from jaxpose.track import Chain
 
 RATE_HZ = 25.0
 # Legend label → the experiment's filter of that name.
 PLOTTED = {
-    "constant rate": "constant rate (before)",
-    "constant α (default)": "constant acceleration (default)",
-    "keyframe clone + covariance": "keyframe clone, fine-stage covariance",
+    "chained, constant rate": "chained, constant rate",
+    "chained, constant α": "chained, constant acceleration",
+    "keyframe clone, half shared (default)": "keyframe clone, half shared (default)",
 }
 
 
 def tumble_figure():
     fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharey=True)
     for ax, (seed, name) in zip(axes, ((0, "tumble_chain.npz"), (1, "tumble_chain_seed1.npz")), strict=True):
-        saved = np.load(RESULTS / name)
-        chain = Chain(**{k: jnp.asarray(saved[k]) for k in saved.files})
+        chain = load_chain(RESULTS / name)
         times = jnp.arange(chain.status.shape[0]) / RATE_HZ
         R = np.asarray(tumble_poses(Tumble.n5(4.5), times)[0])
         truth = true_rates(R, RATE_HZ)

@@ -93,6 +93,15 @@ class Config(eqx.Module):
       (smallest / middle scatter eigenvalue of the neighbourhood): edges and corners go.
     - `fine_points`: capacity of each side (static); more points are thinned evenly.
     - `fine_neighbours`: neighbours of a normal fit (static).
+    - `fine_anchor`: "point" (default) or "centroid" (static): each previous point's plane
+      goes through the point itself or through its neighbourhood's centroid. With 1 cm range
+      noise the point anchor biases registrations in proportion to the motion (the nearest
+      match favours points that noise moved towards the current point) and the centroid
+      removes most of it (`experiments/fine_anchor.py`), so `tracking()` uses it. On the
+      default's 896 noise-free points a side the centroid left 3 of 15 random views of
+      `experiments/bench_estimate.py` not converged (the plane of a neighbourhood that spans
+      an edge misses the surface by millimetres, and the matches cycle between such planes),
+      so the default keeps the point.
     - `fine_guard`: the fine stage's result is dropped, and the local refine's kept, when its
       hard score is lower than the refine's by more than this (0–1; 1 = never dropped). On
       a random view of `experiments/bench_estimate.py` (a development run with 1024 points a
@@ -140,6 +149,7 @@ class Config(eqx.Module):
     fine: Literal["point_to_plane", "none"] = eqx.field(static=True, default="point_to_plane")
     fine_points: int = eqx.field(static=True, default=896)
     fine_neighbours: int = eqx.field(static=True, default=20)
+    fine_anchor: Literal["point", "centroid"] = eqx.field(static=True, default="point")
     fine_rounds: int = eqx.field(static=True, default=20)
     fine_steps: int = eqx.field(static=True, default=20)
     fine_tol: float = eqx.field(static=True, default=1e-6)
@@ -160,6 +170,8 @@ class Config(eqx.Module):
             raise ValueError("population ≥ 2, generations ≥ 1, local_steps ≥ 0 and local_tol > 0 are required.")
         if self.fine not in ("point_to_plane", "none"):
             raise ValueError(f"fine must be 'point_to_plane' or 'none', got {self.fine!r}.")
+        if self.fine_anchor not in ("centroid", "point"):
+            raise ValueError(f"fine_anchor must be 'centroid' or 'point', got {self.fine_anchor!r}.")
         counts = (self.fine_points, self.fine_neighbours - 2, self.fine_steps, self.fine_rounds)
         if min(counts) < 1 or not self.fine_tol > 0:
             raise ValueError("fine_points ≥ 1, fine_neighbours ≥ 3, fine_steps ≥ 1 and fine_tol > 0 are required.")
@@ -260,10 +272,13 @@ class Config(eqx.Module):
         the 10 s N5 tumbles of `experiments/tumble_tracking.py` (4.5 °/s, 5.5 m) 245 and 241
         of 251 frames succeeded against 210 and 220 with `thorough()`, then the default (the
         hard score at a better pose is higher), and on seed 0 the registration error's median
-        was 0.067° against 0.141°. It is slower per pair (neighbour search over 6144 points; not
+        was 0.067° against 0.141° (fine planes through the points, as then). Since, the
+        planes go through the neighbourhood centroids (`fine_anchor`), which removed a bias
+        of the registrations that grew with the motion: 247–250 of 251 frames of six seeds
+        succeeded, with medians 0.043–0.062°. It is slower per pair (neighbour search over 6144 points; not
         benchmarked alone). The search is `thorough()`'s, and so is the capture range.
         """
-        whole = {"fine_prev_slab": math.inf, "fine_curr_slab": math.inf, "fine_points": 6144}
+        whole = {"fine_prev_slab": math.inf, "fine_curr_slab": math.inf, "fine_points": 6144, "fine_anchor": "centroid"}
         return cls(**{**THOROUGH, **whole, **kw})
 
     @classmethod

@@ -12,8 +12,10 @@ measures how far each current point lies from the previous *surface*:
   and corners a normal is meaningless;
 - current side (chosen once, at the start p₀): the current points within `fine_curr_slab`·d
   of a cutting plane of frame ν(p₀);
-- residual of current point i at p: nᵀ(qᵢ(p) − a), with qᵢ(p) its coordinates in frame ν and
-  (a, n) the nearest previous point and its normal — zero where the moved surfaces coincide.
+- residual of current point i at p: nᵀ(qᵢ(p) − a), with qᵢ(p) its coordinates in frame ν
+  and (a, n) the nearest previous point and its normal — zero where the moved surfaces
+  coincide; with `Config.fine_anchor` "centroid" the plane goes through the centroid of
+  a's neighbourhood instead of a (it averages the range noise; `Config.tracking()`).
   Points farther than `fine_inlier` from every previous point (surface seen only in one
   cloud) get weight 0.
 
@@ -47,14 +49,17 @@ RESIDUAL_UNIT = 1e-3
 
 
 class FineCloud(eqx.Module):
-    """Previous points near the cutting planes with their surface normals (frame n, metres).
+    """Previous points near the cutting planes with their surface planes (frame n, metres).
 
     - `points`, `normals`: `(3, K)`, structure of arrays, zero padded; normals unit length.
+    - `offsets`: `(K,)`, the plane of point k is {x : normals[:, k]ᵀ x = offsets[k]}; it goes
+      through the centroid of the point's neighbourhood, not through the point.
     - `valid`: `(K,)` mask (selected and planar).
     """
 
     points: Float[Array, "3 K"]
     normals: Float[Array, "3 K"]
+    offsets: Float[Array, " K"]
     valid: Bool[Array, " K"]
 
 
@@ -95,6 +100,43 @@ def slab_distance(points: Float[Array, "3 N"], planes, d) -> Float[Array, " N"]:
     return jnp.min(jnp.stack([jnp.abs(points[j] - offset * d) for j, offset in planes]), axis=0)
 
 
+def smallest_eigen(
+    S: Float[Array, "K 3 3"],
+) -> tuple[Float[Array, " K"], Float[Array, " K"], Float[Array, "K 3"], Bool[Array, " K"]]:
+    """Smallest and middle eigenvalues of symmetric 3 × 3 matrices, the unit eigenvector of the
+    smallest, and whether it is defined (False where the smallest eigenvalue is not single,
+    e.g. collinear or coincident points: then the vector is 0).
+
+    Closed form (trigonometric eigenvalues, then the largest cross product of two rows of
+    S − λ_min I): several times faster than batched `jnp.linalg.eigh` on the 2-core CPU (a
+    scratch timing; `experiments/bench_estimate.py` times the whole build) and as accurate
+    (`tests/test_fine.py` checks it against eigh). The middle eigenvalue, used only for the
+    planarity ratio, is resolved to ≈ √eps relative where the two largest coincide."""
+    s00, s11, s22 = S[:, 0, 0], S[:, 1, 1], S[:, 2, 2]
+    s01, s02, s12 = S[:, 0, 1], S[:, 0, 2], S[:, 1, 2]
+    q = (s00 + s11 + s22) / 3
+    a, b, c = s00 - q, s11 - q, s22 - q
+    p = jnp.sqrt((a * a + b * b + c * c + 2 * (s01 * s01 + s02 * s02 + s12 * s12)) / 6)
+    inv = 1 / jnp.where(p > 0, p, 1)
+    a, b, c, d, e, f = a * inv, b * inv, c * inv, s01 * inv, s02 * inv, s12 * inv
+    half_det = (a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)) / 2
+    angle = jnp.arccos(jnp.clip(half_det, -1, 1)) / 3
+    largest = q + 2 * p * jnp.cos(angle)
+    smallest = q + 2 * p * jnp.cos(angle + 2 * jnp.pi / 3)
+    middle = 3 * q - largest - smallest
+    M = S - smallest[:, None, None] * jnp.eye(3, dtype=S.dtype)
+    rows = M[:, 0], M[:, 1], M[:, 2]
+    crosses = jnp.stack([jnp.cross(rows[0], rows[1]), jnp.cross(rows[0], rows[2]), jnp.cross(rows[1], rows[2])], 1)
+    norms = jnp.linalg.norm(crosses, axis=2)
+    best = jnp.argmax(norms, axis=1)
+    vector = jnp.take_along_axis(crosses, best[:, None, None], axis=1)[:, 0]
+    size = jnp.take_along_axis(norms, best[:, None], axis=1)[:, 0]
+    # The eigenvector is defined where the smallest eigenvalue is single. Near a double root the
+    # arccos above resolves the eigenvalues only to ≈ √eps · p, hence the margin.
+    defined = (middle - smallest) > 30 * jnp.sqrt(jnp.finfo(S.dtype).eps) * p
+    return smallest, middle, jnp.where(defined[:, None], vector / jnp.where(defined, size, 1)[:, None], 0.0), defined
+
+
 def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Config, planes, d) -> FineCloud:
     """The previous side of the fine stage from the previous points in frame n (rows)."""
     K = config.fine_points if config.fine != "none" else 1
@@ -106,19 +148,29 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     d2 = jnp.where(live[None, :], d2, jnp.inf)
     _, nb = jax.lax.top_k(-d2, min(config.fine_neighbours, K))
     hood = P[:, nb]  # (3, K, k)
-    centred = hood - jnp.mean(hood, axis=2, keepdims=True)
+    centroid = jnp.mean(hood, axis=2, keepdims=True)
+    centred = hood - centroid
     scatter = jnp.einsum("ikn,jkn->kij", centred, centred)
-    eigval, eigvec = jnp.linalg.eigh(scatter)  # ascending
+    smallest, middle, normal, defined = smallest_eigen(scatter)
     enough = jnp.sum(jnp.isfinite(jnp.take_along_axis(d2, nb, axis=1)), axis=1) >= 3
+    enough = enough & defined
     # Planarity: smallest / middle scatter eigenvalue. Keep the `fine_planar_fraction` most
     # planar points: a rank, not an absolute threshold, so that it works whatever the noise
     # (with 1 cm range noise on N5 every neighbourhood scored above 0.01, noise-free the
     # faces score ~0 and the edges high).
-    flatness = jnp.where(live & enough, eigval[:, 0] / jnp.maximum(eigval[:, 1], jnp.finfo(P.dtype).tiny), jnp.inf)
+    flatness = jnp.where(live & enough, smallest / jnp.maximum(middle, jnp.finfo(P.dtype).tiny), jnp.inf)
     count = jnp.sum(live & enough)
     kth = jnp.clip(jnp.ceil(config.fine_planar_fraction * count).astype(jnp.int32) - 1, 0, K - 1)
     ok = live & enough & (flatness <= jnp.sort(flatness)[kth])
-    return FineCloud(jnp.where(ok, P, 0.0), jnp.where(ok, eigvec[:, :, 0].T, 0.0), ok)
+    # With `fine_anchor` "centroid" the plane goes through the neighbourhood's centroid, which
+    # averages the range noise of `fine_neighbours` points. Through the raw noisy point, the
+    # nearest-neighbour match prefers previous points whose noise moved them towards the
+    # current point, which biased registrations of N5 with 1 cm noise in proportion to the
+    # motion (experiments/fine_anchor.py). Matching and the inlier test use the points.
+    normal = normal.T
+    anchor = centroid[:, :, 0] if config.fine_anchor == "centroid" else P
+    offset = jnp.sum(normal * anchor, axis=0)
+    return FineCloud(jnp.where(ok, P, 0.0), jnp.where(ok, normal, 0.0), jnp.where(ok, offset, 0.0), ok)
 
 
 def _moved(p: Float[Array, "6"], b: Float[Array, "3 S"]) -> Float[Array, "3 S"]:
@@ -140,14 +192,14 @@ def _match(q: Float[Array, "3 S"], fine: FineCloud):
 def _residuals(p, b, matched: FineCloud, weight):
     """Point-to-plane residuals of the current points b (frame n) at p against their matched
     previous points and normals; 0 where `weight` is false. Metres."""
-    r = jnp.sum(matched.normals * (_moved(p, b) - matched.points), axis=0)
+    r = jnp.sum(matched.normals * _moved(p, b), axis=0) - matched.offsets
     return jnp.where(weight, r, 0.0)
 
 
 def _correspond(p, b, live, fine: FineCloud, inlier) -> tuple[FineCloud, Bool[Array, " S"]]:
     """The nearest previous point (and normal) of each current point at p, and the inlier mask."""
     nearest, dist = _match(_moved(p, b), fine)
-    matched = FineCloud(fine.points[:, nearest], fine.normals[:, nearest], fine.valid[nearest])
+    matched = jax.tree.map(lambda x: x[..., nearest], fine)
     return matched, live & matched.valid & (dist < inlier)
 
 
@@ -222,4 +274,13 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
     )
 
 
-__all__ = ["FineCloud", "FineResult", "fine_cloud", "fine_covariance", "fine_refine", "select_current", "spread_subset"]
+__all__ = [
+    "FineCloud",
+    "FineResult",
+    "fine_cloud",
+    "smallest_eigen",
+    "fine_covariance",
+    "fine_refine",
+    "select_current",
+    "spread_subset",
+]

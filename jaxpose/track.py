@@ -1,8 +1,8 @@
 """Tracking: keyframe-chained `estimate` results and an extended Kalman filter (issue 7).
 
 Two pure steps, also usable on their own: [`chain_estimates`][] registers every frame and
-chains the motions, [`filter_chain`][] runs the filter over the chained measurements (cheap,
-so a filter can be tuned on one set of registrations); [`track`][] is both.
+chains the motions, [`filter_keyframes`][] (or [`filter_chain`][]) runs a filter over them
+(cheap, so a filter can be tuned on one set of registrations); [`track`][] is both.
 
 **Chaining.** Frame k is registered against the current keyframe (the first frame, then
 every `keyframe_every` frames), so the motion measured stays inside the search box and the
@@ -10,23 +10,26 @@ errors of frame-to-frame steps do not add up at every frame: only each keyframe 
 its pair's error. The chained motion (R_0k, t_0k) maps frame 0's points to frame k's, in the
 camera frame c.
 
-**Filter** ([`TrackFilter`][], an `eqx.Module`): the state is the target's rotation since
-frame 0, A = R_0k (on SO(3), error state as a rotation vector on the left), its angular
-velocity ω and angular acceleration α in frame c (rad/s, rad/s²), and the position and
-velocity (m, m/s) of a tracked point (frame 0's plane origin O_n, moved with the target).
-Why α: a body tumbling about a non-principal axis keeps its angular momentum, not its
-angular velocity; for N5 at 4.5 °/s the apparent ω drifts by ≈ 0.06 °/s per second, which a
-constant-rate model follows only with a lag (measured: 0.25 °/s error after 10 s). The
-shape, hence the inertia, is unknown, so Euler's equations cannot be used; a
-constant-acceleration model with a random walk on α follows a smooth drift without lag.
-Measurements: the chained (R_0k, R_0k O_n + t_0k).
+**State** ([`TrackFilter`][], an `eqx.Module`): the target's rotation since frame 0,
+A = R_0k (on SO(3), error state as a rotation vector on the left), its angular velocity ω
+and angular acceleration α in frame c (rad/s, rad/s²), and the position and velocity (m,
+m/s) of a tracked point (frame 0's plane origin O_n, moved with the target). Why α: a body
+tumbling about a non-principal axis keeps its angular momentum, not its angular velocity;
+for N5 at 4.5 °/s the apparent ω drifts by ≈ 0.06 °/s per second, which a constant-rate
+model follows only with a lag (measured: 0.25 °/s error after 10 s). The shape, hence the
+inertia, is unknown, so Euler's equations cannot be used; a constant-acceleration model with
+a random walk on α follows a smooth drift without lag.
 
-**Alternative** ([`KeyframeFilter`][], [`filter_keyframes`][]): the keyframe's pose cloned
-into the state and each estimate keyframe → k fused with its own fine-stage covariance.
-Measured worse than the chained filter on the N5 tumble (0.10–0.19 against 0.03–0.08 °/s
-after 10 s over four runs, `experiments/tumble_tracking.py`), so [`track`][] uses the
-chained filter. Neither meets 0.05 °/s reliably; registrations from `Config.tracking()`
-(whole-cloud fine stage, about half the error) did not change that.
+**Default filter** ([`KeyframeFilter`][], [`filter_keyframes`][]): the keyframe's pose is
+cloned into the state (stochastic cloning) and each estimate keyframe → k is fused with its
+own fine-stage covariance. Half of that covariance is carried by the clone, because every
+registration against one keyframe shares that keyframe cloud's noise: a chained filter
+reads the jump at each switch as motion. On the N5 tumbles of
+`experiments/tumble_tracking.py` (4.5 °/s, 5.5 m, 1 cm noise, `Config.tracking()`) its rate
+error after 10 s was 0.010–0.046 °/s over six noise seeds (README, "Tracking").
+
+**Chained filter** ([`filter_chain`][]): the chained poses (R_0k, R_0k O_n + t_0k) as
+measurements with a fixed noise; simpler, and 0.045–0.073 °/s on the same registrations.
 """
 
 from __future__ import annotations
@@ -150,9 +153,10 @@ class Chain(eqx.Module):
     switched: Bool[Array, " T"]
 
 
-# Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 2.36× too small on N5
+# Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 1.52× too small on N5
 # pairs with 1 cm range noise (experiments/nees.py; with the scale the NEES is consistent).
-COVARIANCE_SCALE = 2.36
+# It was 2.36 before the fine stage's planes went through the neighbourhood centroids.
+COVARIANCE_SCALE = 1.52
 
 
 def measurement_covariance(problem: Problem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
@@ -248,9 +252,21 @@ class KeyframeFilter(eqx.Module):
         key_attitude = _exp(dx[15:18]) @ self.key_attitude
         return KeyframeFilter(now, key_attitude, self.key_position + dx[18:], cov)
 
-    def clone(self) -> KeyframeFilter:
-        """Make the current state the keyframe (after frame k becomes the new keyframe)."""
-        return KeyframeFilter(self.now, self.now.attitude, self.now.position, _clone_cov(self.cov[:15, :15]))
+    def clone(self, shared: Float[Array, "6 6"] | None = None) -> KeyframeFilter:
+        """Make the current state the keyframe (after frame k becomes the new keyframe).
+
+        `shared`: covariance (left rotation vector in rad, then m) of the part of the coming
+        registrations' error that they all share, because they are all registered against
+        this keyframe's one noisy cloud; it is carried by the clone, so the filter treats it
+        as one offset of the whole segment rather than as independent noise."""
+        cov = _clone_cov(self.cov[:15, :15])
+        if shared is not None:
+            # A registration error e = (e_φ, e_t) common to the segment is a clone error
+            # δφ_key = −e_φ, δr_key = [r_key]× e_φ − e_t (at the clone, where R_rel = I; see
+            # the Jacobian in `update`).
+            T = jnp.block([[-jnp.eye(3), jnp.zeros((3, 3))], [_skew(self.now.position), -jnp.eye(3)]])
+            cov = cov.at[15:, 15:].add(T @ shared @ T.T)
+        return KeyframeFilter(self.now, self.now.attitude, self.now.position, cov)
 
 
 def _clone_cov(P15):
@@ -351,23 +367,39 @@ def filter_keyframes(
     chain: Chain,
     dt: float,
     rate_noise: float = 1e-4,
-    accel_noise: float = 1e-4,
+    accel_noise: float = 1e-2,
     spin_accel_noise: float = 1e-4,
     spin_accel_sigma: float = 0.01,
+    shared_fraction: float = 0.5,
 ) -> Track:
     """Run the [`KeyframeFilter`][] over a chain: each successful frame's own estimate
     (keyframe → k, `chain.relative_*`) with its covariance (`chain.relative_cov`), the
     keyframe cloned where `chain.switched`. Same outputs and noise densities as
-    [`filter_chain`][]. Pure and jittable."""
+    [`filter_chain`][]. Pure and jittable.
+
+    - `shared_fraction`: the part of each registration's covariance that all registrations
+      against one keyframe share (the keyframe cloud's noise); it is carried by the clone,
+      the rest is fused as independent noise. 0.5: both clouds are equally noisy. On the
+      N5 tumbles of `experiments/tumble_tracking.py` the registration errors keyframe → k
+      split about 40 / 60 between the segment's mean and the rest.
+    - `accel_noise` (m/s/√s) is 100× that of [`filter_chain`][]: the tracked point is not the
+      centre of mass, so on a tumbling body it accelerates (ω² times its offset: ≈ 2.5 mm/s²
+      for N5 at 4.5 °/s and 0.4 m). Here the translation measured is coupled to the rotation
+      through the lever arm of the keyframe's point, so a motion model that cannot follow the
+      point dragged the rate (on one tumble 0.10–0.13 °/s off after 10 s, against 0.03 with
+      1e-2).
+    """
 
     def step(filt, inputs):
         R_rel, t_rel, cov, status, switched = inputs
         filt = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
-        filt = tree_select(status == SUCCESS, filt.update(R_rel, t_rel, cov), filt)
-        filt = tree_select(switched, filt.clone(), filt)
+        filt = tree_select(status == SUCCESS, filt.update(R_rel, t_rel, (1 - shared_fraction) * cov), filt)
+        filt = tree_select(switched, filt.clone(shared_fraction * cov), filt)
         return filt, _row(filt.now)
 
+    # Frame 0 is the first keyframe: its share comes with the first registration's covariance.
     filt = KeyframeFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
+    filt = filt.clone(shared_fraction * chain.relative_cov[1])
     inputs = (chain.relative_rotations, chain.relative_translations, chain.relative_cov, chain.status, chain.switched)
     _, outs = jax.lax.scan(step, filt, jax.tree.map(lambda x: x[1:], inputs))
     filtered = (jnp.concatenate([h[None], o]) for h, o in zip(_row(filt.now), outs, strict=True))
@@ -388,9 +420,9 @@ def track(
     **filter_options,
 ) -> Track:
     """Track a sequence of clouds (leading axis T, frames `dt` seconds apart):
-    [`chain_estimates`][] then [`filter_chain`][] (`filter_options` go to the latter).
+    [`chain_estimates`][] then [`filter_keyframes`][] (`filter_options` go to the latter).
     Pure and jittable."""
-    return filter_chain(chain_estimates(clouds, config, key, keyframe_every), dt, **filter_options)
+    return filter_keyframes(chain_estimates(clouds, config, key, keyframe_every), dt, **filter_options)
 
 
 __all__ = [

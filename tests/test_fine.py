@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose.fine import fine_cloud, fine_refine, select_current, spread_subset
+from jaxpose.fine import fine_cloud, fine_refine, select_current, smallest_eigen, spread_subset
 
 CONFIG = jp.Config.fast(max_points=5120)
 
@@ -48,6 +48,52 @@ def test_normals_of_a_plane_and_no_normal_at_a_corner():
     np.testing.assert_allclose(np.abs(N[on_wall, 0]), 1.0, atol=1e-9)
     # Points whose neighbourhood spans both sheets (near the edge) get no normal.
     assert not np.any(ok & (np.abs(P[:, 0]) < 0.01) & (np.abs(P[:, 2]) < 0.01))
+
+
+def test_smallest_eigen_matches_eigh_and_flags_undefined_normals():
+    # Scatter matrices of 20-point neighbourhoods: planar (noise-free and noisy), a random
+    # blob, and degenerate ones (collinear points, one repeated point) that have no normal.
+    rng = np.random.default_rng(1)
+    hoods = []
+    for spread in ((0.05, 0.03, 0.0), (0.05, 0.03, 0.003), (0.04, 0.03, 0.02)):
+        for _ in range(50):
+            basis = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+            hoods.append(rng.normal(size=(20, 3)) * spread @ basis.T)
+    line = np.outer(rng.normal(size=20), [0.3, -0.5, 0.8])
+    hoods += [line, np.zeros((20, 3))]
+    centred = np.stack(hoods) - np.stack(hoods).mean(1, keepdims=True)
+    S = jnp.asarray(np.einsum("kni,knj->kij", centred, centred))
+    smallest, middle, normal, defined = smallest_eigen(S)
+    eigval, eigvec = np.linalg.eigh(np.asarray(S))
+    assert np.all(np.asarray(defined[:-2])) and not np.any(np.asarray(defined[-2:]))
+    np.testing.assert_array_equal(np.asarray(normal[-2:]), 0.0)
+    scale = eigval[:-2, 2]
+    np.testing.assert_allclose(np.asarray(smallest[:-2]), eigval[:-2, 0], atol=1e-12 * scale.max())
+    np.testing.assert_allclose(np.asarray(middle[:-2]), eigval[:-2, 1], rtol=1e-6)
+    dots = np.abs(np.sum(np.asarray(normal[:-2]) * eigvec[:-2, :, 0], axis=1))
+    np.testing.assert_allclose(dots, 1.0, atol=1e-12)
+
+
+def test_plane_offsets_through_the_centroid_average_the_range_noise():
+    # A 2 cm-spaced sheet z = 0 with 1 cm noise along an oblique ray (as a lidar sees a tilted
+    # face): the centroid anchor's planes lie far closer to the true plane than the points do.
+    g = np.arange(-15, 16) * 0.02
+    u, v = np.meshgrid(g, g, indexing="ij")
+    ray = np.array([0.5, 0.0, np.sqrt(0.75)])
+    noise = np.random.default_rng(0).normal(0.0, 0.01, u.size)[:, None] * ray
+    pts = jnp.asarray(np.stack([u.ravel(), v.ravel(), np.zeros(u.size)], 1) + noise)
+    rms = {}
+    for anchor in ("centroid", "point"):
+        config = jp.Config(fine_points=1024, fine_anchor=anchor)
+        fine = fine_cloud(pts, jnp.ones(len(pts), bool), config, ((2, 0.0),), jnp.asarray(0.026))
+        ok = np.asarray(fine.valid)
+        N, off = np.asarray(fine.normals).T[ok], np.asarray(fine.offsets)[ok]
+        # Signed height of the plane above z = 0 where it crosses the point's (x, y).
+        P = np.asarray(fine.points).T[ok]
+        height = (off - N[:, 0] * P[:, 0] - N[:, 1] * P[:, 1]) / N[:, 2]
+        rms[anchor] = float(np.sqrt(np.mean(height**2)))
+    assert rms["point"] > 0.007  # ≈ 1 cm · cos 30°
+    assert rms["centroid"] < 0.4 * rms["point"], rms
 
 
 # The tracking preset fits the whole cloud instead of the slabs around the cutting planes.
