@@ -50,3 +50,13 @@ def paper_clouds(camera):
 @pytest.fixture(scope="session")
 def n5_problem(paper_clouds):
     return jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"])
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """The reproduction notebook reruns the paper's table (what `jaxpose reproduce` does,
+    tested by test_reproduction and test_cli) in a kernel of its own, ≈ 65 s of the default
+    run: it runs with `-m slow`. The quickstart notebook stays in the default run."""
+    for item in items:
+        if item.nodeid.endswith("reproduction.ipynb"):
+            item.add_marker(pytest.mark.slow)
