@@ -22,7 +22,7 @@ import numpy as np
 from _common import T_PAPER, paper_cloud, paper_rotation, time_call, write_json
 
 import jaxpose as jp
-from jaxpose.estimate import STATUS_TEXT, estimate_problem
+from jaxpose.estimate import STATUS_NAME, STATUS_TEXT, estimate_problem
 from jaxpose.scenarios import capture_pair
 
 PRESETS = ("fast", "accurate", "thorough")
@@ -67,8 +67,10 @@ def paper_rows(name: str, config: jp.Config, repeats: int) -> list[dict]:
 
 
 def random_views(name: str, config: jp.Config, count: int = 16) -> dict:
+    """Accuracy and statuses of `config` on the random views (also used by
+    `experiments/fine_anchor.py`)."""
     run = jax.jit(lambda pb, key: estimate_problem(pb, config, key))
-    rot, shift, success, refused = [], [], [], 0
+    rot, shift, success, status, refused = [], [], [], [], 0
     for i in range(count):
         pair = capture_pair(i, seed=1, low_deg=3.0, high_deg=20.0)
         try:
@@ -82,6 +84,7 @@ def random_views(name: str, config: jp.Config, count: int = 16) -> dict:
         rot.append(float(err[:3].max()))
         shift.append(float(err[3:].max()))
         success.append(bool(est.success))
+        status.append(STATUS_NAME[int(est.status)])
     rot, shift = np.array(rot), np.array(shift)
     out = {
         "pairs": count,
@@ -92,6 +95,7 @@ def random_views(name: str, config: jp.Config, count: int = 16) -> dict:
         "rotation_error_deg": {"median": float(np.median(rot)), "max": float(rot.max())},
         "translation_error_cm": {"median": float(np.median(shift)), "p90": float(np.quantile(shift, 0.9))},
         "translation_error_cm_all": shift.round(4).tolist(),
+        "status_all": status,
     }
     print(
         f"{name:8s} random views: found {out['found_lt_1deg']}/{count - refused}, success {out['reported_success']}, "

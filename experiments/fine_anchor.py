@@ -12,7 +12,7 @@ current one, to show which side the bias comes from.
 
 Second part (`views`): the default preset with either anchor on the noise-free random
 views of `experiments/bench_estimate.py` (`capture_pair(i, seed=1, 3°, 20°)`, i < 16, one
-refused for its grid): status, and whether the fine stage's result was kept.
+refused for its grid), scored by bench_estimate's `random_views`: found, successes, statuses.
 
     uv run python experiments/fine_anchor.py        →  results/fine_anchor.json
     uv run python experiments/fine_anchor.py views  →  results/fine_anchor_views.json
@@ -25,10 +25,9 @@ import jax
 import jaxlie
 import numpy as np
 from _common import write_json
+from bench_estimate import random_views
 
 import jaxpose as jp
-from jaxpose.estimate import STATUS_NAME, estimate_problem
-from jaxpose.scenarios import capture_pair
 from jaxpose.sequence import Tumble, simulate_sequence
 
 KEYFRAMES = (0, 25, 50, 75)
@@ -79,38 +78,12 @@ def main():
 
 
 def views():
-    rows = []
+    """The default preset with either anchor on bench_estimate's noise-free random views."""
+    out = {}
     for anchor in ("point", "centroid"):
         config = jp.Config.accurate(max_points=8192, max_prev_points=8192, fine_anchor=anchor)
-        run = jax.jit(lambda pb, key, c=config: estimate_problem(pb, c, key))
-        for i in range(16):
-            pair = capture_pair(i, seed=1, low_deg=3.0, high_deg=20.0)
-            try:
-                problem = jp.Problem.build(pair.prev, pair.curr, config)
-            except ValueError:  # a pattern larger than the grid
-                continue
-            est = run(problem, jax.random.key(0))
-            truth = jp.true_displacement(est.frame, pair.R1, pair.t1, pair.R2, pair.t2)
-            err = np.abs(np.asarray(est.params - truth))
-            row = {
-                "anchor": anchor,
-                "view": i,
-                "status": STATUS_NAME[int(est.status)],
-                "fine_kept": bool(est.fine_kept),
-                "rotation_error_deg": round(float(np.degrees(err[:3].max())), 4),
-                "translation_error_cm": round(float(100 * err[3:].max()), 3),
-            }
-            print(row, flush=True)
-            rows.append(row)
-    summary = {
-        anchor: {
-            "views": sum(r["anchor"] == anchor for r in rows),
-            "success": sum(r["anchor"] == anchor and r["status"] == "success" for r in rows),
-        }
-        for anchor in ("point", "centroid")
-    }
-    print(summary)
-    write_json("fine_anchor_views.json", {"summary": summary, "rows": rows})
+        out[anchor] = random_views(anchor, config)
+    write_json("fine_anchor_views.json", out)
 
 
 if __name__ == "__main__":

@@ -53,7 +53,7 @@ class FineCloud(eqx.Module):
 
     - `points`, `normals`: `(3, K)`, structure of arrays, zero padded; normals unit length.
     - `offsets`: `(K,)`, the plane of point k is {x : normals[:, k]ᵀ x = offsets[k]}; it goes
-      through the centroid of the point's neighbourhood, not through the point.
+      through the point, or through its neighbourhood's centroid (`Config.fine_anchor`).
     - `valid`: `(K,)` mask (selected and planar).
     """
 

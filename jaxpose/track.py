@@ -155,7 +155,8 @@ class Chain(eqx.Module):
 
 # Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 1.52× too small on N5
 # pairs with 1 cm range noise (experiments/nees.py; with the scale the NEES is consistent).
-# It was 2.36 before the fine stage's planes went through the neighbourhood centroids.
+# Calibrated with `fine_anchor` "centroid", that of Config.tracking() whose registrations the
+# filter is fed; with the planes through the points (the other presets) it was 2.36.
 COVARIANCE_SCALE = 1.52
 
 
