@@ -9,8 +9,11 @@ once compiled). The random views are `capture_pair(i, seed=1, 3°, 20°)`, i < 1
 5.5 m, random attitude, a 3–20° turn about a random axis, noise-free.
 
     uv run python experiments/bench_estimate.py [batch ...]  →  results/bench_estimate.json
+    uv run python experiments/bench_estimate.py settings     →  results/bench_settings.json
 
-Batch sizes default to 8. On an accelerator the file is `bench_estimate_<backend>.json`
+Batch sizes default to 8. `settings`: the default against cheaper settings on 48 random
+views (counts of found / success / false success / statuses, no timings), the evidence for
+keeping the default's sizes. On an accelerator the file is `bench_estimate_<backend>.json`
 (e.g. `bench_estimate_gpu.json`), so a GPU run does not overwrite the CPU numbers.
 """
 
@@ -57,6 +60,7 @@ def paper_rows(name: str, config: jp.Config, repeats: int) -> list[dict]:
                     "hard": float(est.hard),
                     "error_deg_cm": err.round(6).tolist(),
                     "local_steps": int(est.local_steps),
+                    "fine_steps": int(est.fine_steps),
                 }
             )
             print(
@@ -127,5 +131,27 @@ def main(repeats: int = 7, batches: tuple[int, ...] = (8,)):
     write_json("bench_estimate.json" if backend == "cpu" else f"bench_estimate_{backend}.json", out)
 
 
+CHEAPER = {
+    "default": {},
+    "fine_neighbours 12": {"fine_neighbours": 12},
+    "coarse_points 384": {"coarse_points": 384},
+    "population 12": {"population": 12},
+    "local_steps 6": {"local_steps": 6},
+    "fine_points 640": {"fine_points": 640},
+}
+"""Settings each cheaper than the default in one stage (`settings` mode)."""
+
+
+def settings(count: int = 48):
+    out = {}
+    for name, changes in CHEAPER.items():
+        views = random_views(name, jp.Config.accurate(max_points=8192, max_prev_points=8192, **changes), count)
+        out[name] = {"changes": changes, **views}
+    write_json("bench_settings.json", {"views": count, "settings": out})
+
+
 if __name__ == "__main__":
-    main(batches=tuple(int(b) for b in sys.argv[1:]) or (8,))
+    if sys.argv[1:] == ["settings"]:
+        settings()
+    else:
+        main(batches=tuple(int(b) for b in sys.argv[1:]) or (8,))

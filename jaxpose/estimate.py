@@ -51,7 +51,8 @@ class Estimate(eqx.Module):
     - `frame`: the plane frame n of the previous cloud.
     - `hard`, `soft`: the objectives at `params`.
     - `status`: one of `SUCCESS` … `AT_BOX_EDGE` (`STATUS_TEXT`); `success` is status == 0.
-    - `evaluations`: objective evaluations of the global stage; `local_steps`: refine steps.
+    - `evaluations`: objective evaluations of the global stage; `local_steps`: refine steps;
+      `fine_steps`: Levenberg–Marquardt steps of the fine stage, all rounds (0 without one).
     - `history`: best objective value of each CMA-ES generation (of the first centred search
       of the restart that gave the result).
     - `recentred`: re-centred CMA-ES searches that ran (see `Config.recentre`) in the search
@@ -73,6 +74,7 @@ class Estimate(eqx.Module):
     status: Int[Array, ""]
     evaluations: Int[Array, ""]
     local_steps: Int[Array, ""]
+    fine_steps: Int[Array, ""]
     history: Float[Array, " G"]
     recentred: Int[Array, ""]
     restarts: Int[Array, ""]
@@ -96,6 +98,7 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
     inliers = rms = jnp.asarray(jnp.nan, problem.d.dtype)
     hard = hard_score(p, problem)
     fine_kept = jnp.asarray(False)
+    fine_steps = jnp.asarray(0, jnp.int32)
     if config.fine != "none":
         fine = fine_refine(problem, config, loc.params)
         # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
@@ -109,7 +112,7 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         p = jnp.where(fine_kept, fine.params, p)
         converged = jnp.where(fine_kept, fine.converged, converged)
         hard = jnp.where(fine_kept, fine_hard, hard)
-        inliers, rms = fine.inliers, fine.rms
+        inliers, rms, fine_steps = fine.inliers, fine.rms, fine.steps
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
     # First matching condition wins: the order is the priority of the statuses.
     status = jnp.select(
@@ -129,6 +132,7 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         status=jnp.asarray(status, jnp.int32),
         evaluations=jnp.asarray(glob.evaluations, jnp.int32),
         local_steps=jnp.asarray(loc.steps, jnp.int32),
+        fine_steps=fine_steps,
         history=glob.history,
         recentred=jnp.asarray(glob.recentred, jnp.int32),
         restarts=jnp.asarray(glob.restarts, jnp.int32),

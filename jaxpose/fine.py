@@ -70,8 +70,9 @@ class FineResult(eqx.Module):
     - `converged`: LM met its tolerance within `fine_steps`.
     - `steps`: LM steps taken.
     - `inliers`: fraction of the selected current points within `fine_inlier` of the
-      previous points at `params` (0 when none was selected).
-    - `rms`: root mean square point-to-plane residual of the inliers, metres.
+      previous points, with the last round's matches (made where that round started, within
+      `ROUND_TOL` of `params` when converged); 0 when none was selected.
+    - `rms`: root mean square point-to-plane residual of those inliers at `params`, metres.
     - `used`: number of selected current points.
     """
 
@@ -247,21 +248,26 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
     solver = optx.LevenbergMarquardt(rtol=config.fine_tol, atol=config.fine_tol)
 
     def one_round(state):
-        y, _, rounds, steps = state
+        y, _, rounds, steps, _ = state
         matched, weight = _correspond(y * scale, b, live, fine, inlier)
         fn = lambda y_, _: _residuals(y_ * scale, b, matched, weight) / RESIDUAL_UNIT  # noqa: E731
         sol = optx.least_squares(fn, solver, y, None, max_steps=config.fine_steps, throw=False)
         moved = jnp.max(jnp.abs(sol.value - y))
-        return sol.value, moved, rounds + 1, steps + sol.stats["num_steps"]
+        return sol.value, moved, rounds + 1, steps + sol.stats["num_steps"], (matched, weight)
 
     def more(state):
-        _, moved, rounds, _ = state
+        _, moved, rounds, _, _ = state
         return (moved > ROUND_TOL) & (rounds < config.fine_rounds)
 
-    state = (start / scale, jnp.asarray(jnp.inf, dtype), jnp.asarray(0), jnp.asarray(0))
-    y, moved, _, steps = jax.lax.while_loop(more, one_round, state)
+    # Placeholder matches, of the right structure: the loop runs at least once and replaces them.
+    shapes = jax.eval_shape(lambda: _correspond(start, b, live, fine, inlier))
+    unmatched = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+    state = (start / scale, jnp.asarray(jnp.inf, dtype), jnp.asarray(0), jnp.asarray(0), unmatched)
+    y, moved, _, steps, (matched, weight) = jax.lax.while_loop(more, one_round, state)
     p = y * scale
-    matched, weight = _correspond(p, b, live, fine, inlier)
+    # The inlier fraction and RMS use the last round's matches (made where that round started,
+    # within ROUND_TOL of p when converged) rather than a fresh nearest-neighbour search at p,
+    # which would cost as much as a round's matching.
     r = _residuals(p, b, matched, weight)
     n_in, used = jnp.sum(weight), jnp.sum(live)
     return FineResult(

@@ -222,17 +222,17 @@ def round_half_up(x) -> Array:
 
 
 def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
-    prev = Cloud(prev.masked_points, prev.valid)
     curr = Cloud(curr.masked_points, curr.valid)
-    frame = plane_frame(prev)
-    # The previous points in frame n, compacted to their valid ones: every later pass over them
-    # (patterns at each level, the fine stage's side) then touches max_prev_points rows, not the
-    # whole frame (41 616 pixels for 4 194 points on the paper's N5). Rows are gathered after
-    # the transform and kept in order, so the patterns and the fine cloud are the same.
+    # The previous cloud compacted to its valid points first: the frame, the patterns at each
+    # level and the fine stage's side then touch max_prev_points rows, not the whole frame
+    # (41 616 pixels for 4 194 points on the paper's N5). Rows stay in order. (On overflow the
+    # frame is that of the first max_prev_points points, and the status says so.)
     n_prev = jnp.sum(prev.valid)
     (keep,) = jnp.nonzero(prev.valid, size=config.max_prev_points, fill_value=0)
     live = jnp.arange(config.max_prev_points) < n_prev
-    A = jnp.where(live[:, None], frame.to_frame(prev.points)[keep], 0.0)
+    prev = Cloud(Cloud(prev.points[keep], live).masked_points, live)
+    frame = plane_frame(prev)
+    A = jnp.where(live[:, None], frame.to_frame(prev.points), 0.0)
     status = jnp.where(frame.ok, 0, PROBLEM_FRAME) | jnp.where(
         n_prev > config.max_prev_points, PROBLEM_PREV_OVERFLOW, 0
     )

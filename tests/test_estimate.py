@@ -46,6 +46,7 @@ def test_paper_pairs_within_issue_bounds(paper_clouds, shape, variant):
     # Noise-free: an exact fit. `inliers` is the share of current points within 3 cm of a planar
     # previous point: 0.68–0.85 with the default's 896 points a side (0.75+ with 2048).
     assert float(est.inliers) > 0.65 and float(est.fine_rms) < 1e-5 and bool(est.fine_kept)
+    assert 0 < int(est.fine_steps) <= CONFIG.fine_rounds * CONFIG.fine_steps
 
 
 def test_recovers_the_paper_variant2_displacement(n5_estimate):
