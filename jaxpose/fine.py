@@ -67,8 +67,8 @@ class FineResult(eqx.Module):
     """Result of [`fine_refine`][].
 
     - `params`: p in frame n (radians, metres).
-    - `converged`: LM met its tolerance within `fine_steps`.
-    - `steps`: LM steps taken.
+    - `converged`: the last round moved p by at most `ROUND_TOL` (within `fine_rounds`).
+    - `steps`: LM steps taken, all rounds.
     - `inliers`: fraction of the selected current points within `fine_inlier` of the
       previous points, with the last round's matches (made where that round started, within
       `ROUND_TOL` of `params` when converged); 0 when none was selected.
