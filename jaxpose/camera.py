@@ -25,7 +25,14 @@ class Camera(eqx.Module):
     - `tan_half_x`, `tan_half_y`: tangent of half the field of view along x_c and y_c.
     - `range_min`, `range_max`: range gate in metres; a first hit outside it gives no point.
     - `noise_sigma`: standard deviation (metres) of Gaussian range noise along the ray.
+    - `noise_range_ref`: 0 (default) for the same `noise_sigma` at every pixel; > 0 (metres)
+      for a ToF camera's noise, which grows with range and falls with the return's strength:
+      σ = `noise_sigma` · (r / `noise_range_ref`) / √max(cos i, 0.1), with r the range and i
+      the angle of incidence on the surface (so `noise_sigma` is σ head-on at that range).
     - `dropout`: probability that a pixel returns no point.
+    - `flying`: probability that a pixel at a depth edge (a 4-neighbour more than
+      `FLYING_EDGE` farther or nearer) returns a mixed range, uniformly between its own and
+      the neighbour's, as a ToF pixel that sees both surfaces does ("flying pixels").
 
     Noise and dropout act only when [`jaxpose.simulate`][] gets a `key`.
     """
@@ -38,6 +45,8 @@ class Camera(eqx.Module):
     range_max: float = 7.0
     noise_sigma: float = 0.0
     dropout: float = 0.0
+    noise_range_ref: float = 0.0
+    flying: float = 0.0
 
     def __check_init__(self):
         if self.width < 1 or self.height < 1:

@@ -26,16 +26,19 @@ class Config(eqx.Module):
       extent in cells (paper: 0.2).
     - `slices`: K parallel slices per axis, offsets (k − (K−1)/2)·2d, k = 0…K−1 (static;
       K = 1 is the paper's three planes).
-    - `grid_cells`: capacity C of each plane's grid along each axis (static). A pattern
-      whose grid (m + 2e + 1 cells) does not fit loses its outer cells and the problem's
-      status reports it; the Python boundary raises instead.
-    - `max_points`: capacity for the current cloud's valid points (static). `None` (default)
-      sizes it from the data at the Python boundary (the valid count rounded up to 512) and
-      uses the full cloud size under jit; fewer slots make scoring faster.
-    - `max_prev_points`: capacity for the previous cloud's valid points (static), sized like
-      `max_points`. The previous points are compacted to it once; passes over them are then
-      shorter than over the whole frame.
-    - `max_cells`: capacity for the filled cells of one previous pattern (static).
+    **Capacities** (static; they fix array shapes). `None`, the default for each, sizes it
+    from the clouds at the Python boundary (`jaxpose.problem.sized_config`: the counts and
+    the previous patterns, rounded up to a few buckets so that a stream of frames reuses one
+    compiled program). Under `jax.jit` a capacity left at None becomes the cloud's row count
+    for the points and `JIT_GRID_CELLS` / `JIT_MAX_CELLS` for the patterns; size a config
+    for jitted code with [`Config.sized_for`][] instead. A pattern or cloud that overflows a
+    capacity under jit is reported in the problem's status, never silently used.
+
+    - `grid_cells`: capacity C of each plane's grid along each axis.
+    - `max_points`: capacity for the current cloud's valid points; fewer slots score faster.
+    - `max_prev_points`: capacity for the previous cloud's valid points. The previous points
+      are compacted to it once; passes over them are then shorter than over the whole frame.
+    - `max_cells`: capacity for the filled cells of one previous pattern.
 
     **Soft objective** (ours):
 
@@ -133,10 +136,10 @@ class Config(eqx.Module):
     slices: int = eqx.field(static=True, default=1)
     coarse: int = eqx.field(static=True, default=3)
     coarse_points: int = eqx.field(static=True, default=512)
-    grid_cells: int = eqx.field(static=True, default=128)
+    grid_cells: int | None = eqx.field(static=True, default=None)
     max_points: int | None = eqx.field(static=True, default=None)
     max_prev_points: int | None = eqx.field(static=True, default=None)
-    max_cells: int = eqx.field(static=True, default=512)
+    max_cells: int | None = eqx.field(static=True, default=None)
     global_objective: Literal["hard", "soft"] = eqx.field(static=True, default="soft")
     population: int = eqx.field(static=True, default=16)
     generations: int = eqx.field(static=True, default=16)
@@ -164,9 +167,9 @@ class Config(eqx.Module):
             raise ValueError(
                 f"Config.coarse must be ≥ 1 and coarse_points ≥ 10, got {self.coarse!r}, {self.coarse_points!r}."
             )
-        capacities = (self.slices, self.grid_cells - 2, self.max_points or 1, self.max_prev_points or 1, self.max_cells)
-        if min(capacities) < 1:
-            raise ValueError("slices, grid_cells, max_points, max_prev_points and max_cells must be positive.")
+        capacities = (self.grid_cells, self.max_points, self.max_prev_points, self.max_cells)
+        if self.slices < 1 or min(c or 3 for c in capacities) < 3:
+            raise ValueError("slices must be ≥ 1; grid_cells, max_points, max_prev_points and max_cells ≥ 3 or None.")
         if self.global_objective not in ("hard", "soft"):
             raise ValueError(f"global_objective must be 'hard' or 'soft', got {self.global_objective!r}.")
         if self.local not in ("bfgs", "nelder_mead", "none"):
@@ -212,6 +215,39 @@ class Config(eqx.Module):
         """(normal axis j, offset in units of d) of every cutting plane, plane 1 first."""
         K = self.slices
         return tuple((j, 2.0 * (k - (K - 1) / 2)) for j in range(3) for k in range(K))
+
+    def with_jit_capacities(self, prev_rows: int, curr_rows: int) -> Config:
+        """This config with each capacity left at None set for traced clouds of `prev_rows` and
+        `curr_rows` rows: the row counts for the points, `JIT_GRID_CELLS` and `JIT_MAX_CELLS`."""
+        fill = {"max_prev_points": prev_rows, "max_points": curr_rows}
+        fill |= {"grid_cells": JIT_GRID_CELLS, "max_cells": JIT_MAX_CELLS}
+        return dataclasses.replace(self, **{k: v for k, v in fill.items() if getattr(self, k) is None})
+
+    def sized_for(self, camera, extent: float, distance: float | None = None) -> Config:
+        """This config with its capacities sized for a target of largest extent `extent`
+        (metres) seen by `camera` at `distance` (metres; default the nearest the target fits
+        in the field of view, never below `camera.range_min`): for code that calls
+        `estimate` under `jax.jit`, where the clouds cannot size it.
+
+        - points: the pixels the target's bounding sphere can cover at that distance;
+        - `grid_cells`: (1 + 2·extension)·extent/d + 3 cells plus the margin of `sized_config`;
+        - `max_cells`: 4π·extent/d, twice the cells along the outline of a slab through a
+          convex body of that size, at least `JIT_MAX_CELLS` / 4.
+
+        Each is rounded up by `jaxpose.problem.bucket`; capacities already set are kept."""
+        from .problem import GRID_MARGIN, bucket
+
+        tan_half = min(float(camera.tan_half_x), float(camera.tan_half_y))
+        fit = extent / 2 / tan_half
+        distance = max(fit, float(camera.range_min)) if distance is None else distance
+        radius = extent / 2
+        half_angle = math.asin(min(1.0, radius / max(distance, radius)))
+        share = min(1.0, (math.tan(half_angle) / float(camera.tan_half_x)) * (math.tan(half_angle) / float(camera.tan_half_y)))
+        pixels = bucket(math.ceil(share * camera.width * camera.height) + 1, 512)
+        cells = (1 + 2 * self.extension) * extent / self.d + 3 + GRID_MARGIN
+        fill = {"max_points": pixels, "max_prev_points": pixels, "grid_cells": bucket(math.ceil(cells), 32)}
+        fill["max_cells"] = bucket(max(math.ceil(4 * math.pi * extent / self.d), JIT_MAX_CELLS // 4), 64)
+        return dataclasses.replace(self, **{k: v for k, v in fill.items() if getattr(self, k) is None})
 
     @property
     def coarse_config(self) -> Config:
@@ -296,6 +332,13 @@ class Config(eqx.Module):
         pairs."""
         return cls(**kw)
 
+
+JIT_GRID_CELLS = 256
+"""`grid_cells` under jit when the config leaves it at None: with the default d and
+extension, patterns up to about 4.7 m across."""
+
+JIT_MAX_CELLS = 2048
+"""`max_cells` under jit when the config leaves it at None."""
 
 THOROUGH = {
     "coarse": 1,

@@ -16,7 +16,8 @@ from .fine import fine_refine
 from .frame import PlaneFrame
 from .objective import hard_score, soft_score
 from .poses import motion_from_displacement
-from .problem import Problem
+from ._checks import is_concrete
+from .problem import Problem, build_problem, check_range, grow_capacities, raise_for_codes, sized_config
 from .search import local_refine, restarted_search
 
 SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE, AT_BOX_EDGE = 0, 1, 2, 3, 4, 5
@@ -160,8 +161,32 @@ def estimate(prev: Cloud, curr: Cloud, config: Config | None = None, *, key: PRN
     comes back with status `DEGENERATE` and never as a success.
     """
     config = Config.accurate() if config is None else config
-    problem = Problem.build(prev, curr, config)
-    return estimate_problem(problem, config, key)
+    if not is_concrete(prev, curr):
+        return estimate_problem(Problem.build(prev, curr, config), config, key)
+    prev.check("previous cloud")
+    curr.check("current cloud")
+    check_range(prev, curr, config)
+    config = sized_config(prev, curr, config)
+    for _ in range(GROW_TRIES):
+        est, status, frame_status = _estimate_pair(prev, curr, config, key)
+        grown = grow_capacities(config, int(status))
+        if grown is None:
+            break
+        config = grown
+    raise_for_codes(int(status), int(frame_status))
+    return est
+
+
+GROW_TRIES = 4
+"""Compiled calls `estimate` may make at the Python boundary: a capacity that the sizing
+missed (a rounding at the coarse level) is grown and the pair run again."""
+
+
+@eqx.filter_jit
+def _estimate_pair(prev: Cloud, curr: Cloud, config: Config, key: PRNGKeyArray):
+    """Build, search, refine and fine stage as one compiled program per capacity bucket."""
+    problem = build_problem(prev, curr, config)
+    return estimate_problem(problem, config, key), problem.status, problem.frame.status
 
 
 __all__ = ["STATUS_NAME", "STATUS_TEXT", "Estimate", "estimate", "estimate_problem"]

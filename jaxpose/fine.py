@@ -27,6 +27,8 @@ soft refine and never replaces them. Lengths in metres, angles in radians, frame
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -34,6 +36,7 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
 from .config import Config
+from .neighbours import VoxelGrid, k_nearest, nearest, spread_subset, voxel_grid, voxel_spacing
 from .rotations import rotation
 
 FINE_SCALE = (jnp.pi / 180.0,) * 3 + (0.01,) * 3
@@ -47,20 +50,39 @@ flip between two equally near points kept some pairs cycling to the round limit.
 RESIDUAL_UNIT = 1e-3
 """Residuals are expressed in millimetres, so that LM's tolerances read in mm."""
 
+NEIGHBOUR_VOXEL = 2.0
+"""Voxel edge of the neighbour search, in sampling steps of the previous points (their median
+nearest-neighbour distance): a voxel holds about four points of a surface seen head-on."""
+
+NEIGHBOUR_SLOTS = 16
+"""Points read from each column of three voxels (`jaxpose.neighbours.candidates`)."""
+
+ROBUST_SCALE = 3.0
+"""Cauchy weights 1 / (1 + (r / c)²) with c = this × the round's robust residual scale
+(1.4826 × median |r| of the inliers), at least `ROBUST_FLOOR`: flying pixels, surface seen in
+one cloud only and mismatched edges weigh little, and the noise's own spread keeps weight."""
+
+ROBUST_FLOOR = 5e-4
+"""Smallest Cauchy scale c, metres: noise-free residuals do not shrink it to nothing."""
+
 
 class FineCloud(eqx.Module):
     """Previous points near the cutting planes with their surface planes (frame n, metres).
 
-    - `points`, `normals`: `(3, K)`, structure of arrays, zero padded; normals unit length.
+    - `points`: `(3, K)` the selected previous points, structure of arrays, zero padded.
+    - `normals`: `(3, K)` unit normals of the planar ones (zero elsewhere).
     - `offsets`: `(K,)`, the plane of point k is {x : normals[:, k]ᵀ x = offsets[k]}; it goes
       through the point, or through its neighbourhood's centroid (`Config.fine_anchor`).
     - `valid`: `(K,)` mask (selected and planar).
+    - `grid`: the voxel grid of the selected points (planar or not) that the matching
+      searches ([`jaxpose.neighbours`][]); its voxel is `NEIGHBOUR_VOXEL` sampling steps.
     """
 
     points: Float[Array, "3 K"]
     normals: Float[Array, "3 K"]
     offsets: Float[Array, " K"]
     valid: Bool[Array, " K"]
+    grid: VoxelGrid
 
 
 class FineResult(eqx.Module):
@@ -82,18 +104,6 @@ class FineResult(eqx.Module):
     inliers: Float[Array, ""]
     rms: Float[Array, ""]
     used: Int[Array, ""]
-
-
-def spread_subset(mask: Bool[Array, " N"], size: int) -> tuple[Int[Array, " size"], Bool[Array, " size"]]:
-    """Indices of at most `size` true entries of `mask`, evenly spread over them (all of them
-    when there are at most `size`), and the mask of the live slots. Static shapes."""
-    count = jnp.sum(mask)
-    rank = jnp.cumsum(mask) - 1  # rank of each true entry among the true entries
-    # Keep the entry of rank r when ⌊r·size/count⌋ steps up there: `size` evenly spaced ranks.
-    step = jnp.floor(rank * size / jnp.maximum(count, 1)) != jnp.floor((rank - 1) * size / jnp.maximum(count, 1))
-    keep = mask & jnp.where(count > size, step, True)
-    (idx,) = jnp.nonzero(keep, size=size, fill_value=0)
-    return idx, jnp.arange(size) < jnp.minimum(count, size)
 
 
 def slab_distance(points: Float[Array, "3 N"], planes, d) -> Float[Array, " N"]:
@@ -145,16 +155,15 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     near = valid & (slab_distance(A, planes, d) <= config.fine_prev_slab * d)
     idx, live = spread_subset(near, K)
     P = A[:, idx]
-    d2 = sum((P[k][:, None] - P[k][None, :]) ** 2 for k in range(3))
-    d2 = jnp.where(live[None, :], d2, jnp.inf)
-    _, nb = jax.lax.top_k(-d2, min(config.fine_neighbours, K))
+    grid = voxel_grid(P, live, NEIGHBOUR_VOXEL * voxel_spacing(P, live))
+    nb, d2 = k_nearest(grid, P, P, min(config.fine_neighbours, K), NEIGHBOUR_SLOTS)
+    found = jnp.isfinite(d2).astype(P.dtype)  # neighbours within the search's reach
     hood = P[:, nb]  # (3, K, k)
-    centroid = jnp.mean(hood, axis=2, keepdims=True)
-    centred = hood - centroid
+    centroid = jnp.sum(hood * found, axis=2, keepdims=True) / jnp.maximum(jnp.sum(found, axis=1), 1)[:, None]
+    centred = (hood - centroid) * found
     scatter = jnp.einsum("ikn,jkn->kij", centred, centred)
     smallest, middle, normal, defined = smallest_eigen(scatter)
-    enough = jnp.sum(jnp.isfinite(jnp.take_along_axis(d2, nb, axis=1)), axis=1) >= 3
-    enough = enough & defined
+    enough = (jnp.sum(found, axis=1) >= 3) & defined
     # Planarity: smallest / middle scatter eigenvalue. Keep the `fine_planar_fraction` most
     # planar points: a rank, not an absolute threshold, so that it works whatever the noise
     # (with 1 cm range noise on N5 every neighbourhood scored above 0.01, noise-free the
@@ -171,7 +180,7 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     normal = normal.T
     anchor = centroid[:, :, 0] if config.fine_anchor == "centroid" else P
     offset = jnp.sum(normal * anchor, axis=0)
-    return FineCloud(jnp.where(ok, P, 0.0), jnp.where(ok, normal, 0.0), jnp.where(ok, offset, 0.0), ok)
+    return FineCloud(jnp.where(live, P, 0.0), jnp.where(ok, normal, 0.0), jnp.where(ok, offset, 0.0), ok, grid)
 
 
 def _moved(p: Float[Array, "6"], b: Float[Array, "3 S"]) -> Float[Array, "3 S"]:
@@ -182,26 +191,41 @@ def _moved(p: Float[Array, "6"], b: Float[Array, "3 S"]) -> Float[Array, "3 S"]:
 
 
 def _match(q: Float[Array, "3 S"], fine: FineCloud):
-    """Nearest valid previous point of each q (index) and its distance, metres."""
+    """Nearest selected previous point of each q (index) and its distance, metres (inf beyond
+    the neighbour search's reach). A match whose point is not planar is no inlier."""
     q = jax.lax.stop_gradient(q)  # the correspondence is held constant under differentiation
-    d2 = sum((q[k][:, None] - fine.points[k][None, :]) ** 2 for k in range(3))
-    d2 = jnp.where(fine.valid[None, :], d2, jnp.inf)
-    nearest = jnp.argmin(d2, axis=1)
-    return nearest, jnp.sqrt(jnp.take_along_axis(d2, nearest[:, None], axis=1)[:, 0])
+    return nearest(fine.grid, fine.points, q, NEIGHBOUR_SLOTS)
 
 
-def _residuals(p, b, matched: FineCloud, weight):
+class Matches(NamedTuple):
+    """The plane (unit normal, offset; frame n) matched to each current point, and whether
+    its previous point is planar."""
+
+    normals: Float[Array, "3 S"]
+    offsets: Float[Array, " S"]
+    valid: Bool[Array, " S"]
+
+
+def _residuals(p, b, matched: Matches, weight):
     """Point-to-plane residuals of the current points b (frame n) at p against their matched
     previous points and normals; 0 where `weight` is false. Metres."""
     r = jnp.sum(matched.normals * _moved(p, b), axis=0) - matched.offsets
     return jnp.where(weight, r, 0.0)
 
 
-def _correspond(p, b, live, fine: FineCloud, inlier) -> tuple[FineCloud, Bool[Array, " S"]]:
+def _correspond(p, b, live, fine: FineCloud, inlier) -> tuple[Matches, Bool[Array, " S"]]:
     """The nearest previous point (and normal) of each current point at p, and the inlier mask."""
     nearest, dist = _match(_moved(p, b), fine)
-    matched = jax.tree.map(lambda x: x[..., nearest], fine)
+    matched = Matches(fine.normals[:, nearest], fine.offsets[nearest], fine.valid[nearest])
     return matched, live & matched.valid & (dist < inlier)
+
+
+def _robust_weights(r: Float[Array, " S"], inlier: Bool[Array, " S"]) -> Float[Array, " S"]:
+    """Cauchy IRLS weights of residuals r (metres) for one round (see `ROBUST_SCALE`); 0 for
+    points that are no inliers."""
+    spread = 1.4826 * jnp.nanmedian(jnp.where(inlier, jnp.abs(r), jnp.nan))
+    c = jnp.maximum(ROBUST_SCALE * jnp.where(jnp.isfinite(spread), spread, 0.0), ROBUST_FLOOR)
+    return jnp.where(inlier, 1 / (1 + (r / c) ** 2), 0.0)
 
 
 def select_current(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, "3 S"], Bool[Array, " S"]]:
@@ -250,7 +274,8 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
     def one_round(state):
         y, _, rounds, steps, _ = state
         matched, weight = _correspond(y * scale, b, live, fine, inlier)
-        fn = lambda y_, _: _residuals(y_ * scale, b, matched, weight) / RESIDUAL_UNIT  # noqa: E731
+        root_w = jnp.sqrt(_robust_weights(_residuals(y * scale, b, matched, weight), weight))
+        fn = lambda y_, _: root_w * _residuals(y_ * scale, b, matched, weight) / RESIDUAL_UNIT  # noqa: E731
         sol = optx.least_squares(fn, solver, y, None, max_steps=config.fine_steps, throw=False)
         moved = jnp.max(jnp.abs(sol.value - y))
         return sol.value, moved, rounds + 1, steps + sol.stats["num_steps"], (matched, weight)

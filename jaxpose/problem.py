@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -26,7 +27,8 @@ from jaxtyping import Array, Bool, Float, Int
 from ._checks import is_concrete
 from .cloud import Cloud
 from .config import Config
-from .fine import FineCloud, fine_cloud, spread_subset
+from .fine import FineCloud, fine_cloud
+from .neighbours import spread_subset
 from .frame import FRAME_STATUS_TEXT, PlaneFrame, plane_frame
 
 # Bits of Problem.status.
@@ -142,29 +144,67 @@ class Problem(eqx.Module):
         if is_concrete(prev, curr):
             prev.check("previous cloud")
             curr.check("current cloud")
-            _check_range(prev, curr, config)
-        config = dataclasses.replace(
-            config,
-            max_points=config.max_points or _capacity(curr),
-            max_prev_points=config.max_prev_points or _capacity(prev),
-        )
-        # Traced inputs (jit, vmap) get one compiled call: op by op, a build under `jax.vmap`
-        # crashed XLA:CPU (segfault, JAX 0.10.2). Concrete ones run op by op, no compile.
-        problem = (_build if is_concrete(prev, curr) else _build_compiled)(prev, curr, config)
+            check_range(prev, curr, config)
+            config = sized_config(prev, curr, config)
+        else:
+            config = config.with_jit_capacities(prev.points.shape[-2], curr.points.shape[-2])
+        for _ in range(3):
+            problem = build_problem(prev, curr, config)
+            grown = grow_capacities(config, int(problem.status)) if is_concrete(problem) else None
+            if grown is None:
+                break
+            config = grown
         if is_concrete(problem):
             raise_for_status(problem)
         return problem
 
 
-def _capacity(cloud: Cloud) -> int:
-    """A capacity for the cloud's valid points: their count rounded up to 512 at the Python
-    boundary, the whole cloud under jit."""
-    if is_concrete(cloud):
-        return max(512, -(-int(jnp.sum(cloud.valid)) // 512) * 512)
-    return cloud.points.shape[-2]
+def bucket(count: int, least: int = 64) -> int:
+    """The smallest capacity ≥ `count` among least · {1, 1.5} · 2^k. Few sizes, so that a stream
+    of similar clouds reuses one compiled program, and at most 1.5× the need."""
+    size = least
+    while size < count:
+        size = size * 3 // 2 if (size & (size - 1)) == 0 else size * 4 // 3
+    return size
 
 
-def _check_range(prev: Cloud, curr: Cloud, config: Config) -> None:
+GRID_MARGIN = 4
+"""Cells added to the largest previous pattern's grid when sizing `grid_cells`: the coarse
+level's grid, ⌈C / coarse⌉ + 2 cells, then holds its own rounding of m and e."""
+
+
+def sized_config(prev: Cloud, curr: Cloud, config: Config) -> Config:
+    """`config` with every capacity left at None sized from the clouds (Python boundary only):
+    the valid counts for `max_points` and `max_prev_points`, the largest previous pattern's
+    grid for `grid_cells` and its selected points (an upper bound of its filled cells) for
+    `max_cells`, each rounded up by [`bucket`][]. Capacities the config sets are kept."""
+    n_prev, grid, selected = (int(x) for x in _pattern_sizes(prev, config))
+    n_curr = int(np.sum(np.asarray(curr.valid)))
+    fill = {
+        "max_points": bucket(n_curr, 512),
+        "max_prev_points": bucket(n_prev, 512),
+        "grid_cells": bucket(grid + GRID_MARGIN, 32),
+        "max_cells": bucket(selected, 64),
+    }
+    return dataclasses.replace(config, **{k: v for k, v in fill.items() if getattr(config, k) is None})
+
+
+@eqx.filter_jit
+def _pattern_sizes(prev: Cloud, config: Config):
+    """The previous cloud's valid count, its largest pattern grid (cells per axis, before the
+    cap) and the most points any pattern selects, at `config.d`, for [`sized_config`][]."""
+    frame = plane_frame(prev)
+    A = jnp.where(prev.valid[:, None], frame.to_frame(prev.masked_points), 0.0)
+    d = jnp.asarray(config.d, A.dtype)
+    grids = [_plane_grid(A, prev.valid, j, offset, d, config.extension) for j, offset in config.planes()]
+    return (
+        jnp.sum(prev.valid),
+        jnp.max(jnp.stack([jnp.max(jnp.stack(g.size)) for g in grids])),
+        jnp.max(jnp.stack([jnp.sum(g.selected) for g in grids])),
+    )
+
+
+def check_range(prev: Cloud, curr: Cloud, config: Config) -> None:
     """Refuse clouds beyond `config.max_range`, or so far out that the float type cannot
     resolve d/10 there (both mean the data are not lidar returns in metres)."""
     d = config.d
@@ -187,11 +227,29 @@ def _check_range(prev: Cloud, curr: Cloud, config: Config) -> None:
 
 def raise_for_status(problem: Problem) -> None:
     """Raise a ValueError that names the problem and its fix, if `problem.status` is not 0."""
-    status = int(problem.status)
+    raise_for_codes(int(problem.status), int(problem.frame.status))
+
+
+def grow_capacities(config: Config, status: int) -> Config | None:
+    """`config` with each capacity that `status` reports overflowed doubled, or None when none
+    did. The Python boundary runs a pair again with it, so a capacity is never the user's."""
+    grow = {
+        PROBLEM_GRID_OVERFLOW: "grid_cells",
+        PROBLEM_CELLS_OVERFLOW: "max_cells",
+        PROBLEM_POINTS_OVERFLOW: "max_points",
+        PROBLEM_PREV_OVERFLOW: "max_prev_points",
+    }
+    fields = {name: 2 * getattr(config, name) for bit, name in grow.items() if status & bit}
+    return dataclasses.replace(config, **fields) if fields else None
+
+
+def raise_for_codes(status: int, frame_status: int) -> None:
+    """Raise a ValueError that names the problem and its fix, for a problem status (bits
+    `PROBLEM_*`) and its frame's status; nothing when both are 0."""
     if status & PROBLEM_FRAME:
         raise ValueError(
             "previous cloud: "
-            + FRAME_STATUS_TEXT[int(problem.frame.status)]
+            + FRAME_STATUS_TEXT[frame_status]
             + "; the plane frame cannot be built. Give a cloud of a 3D object with distinct spreads."
         )
     if status & PROBLEM_FEW_CURRENT:
@@ -246,7 +304,32 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
     return _patterns(frame, A, live, curr, config, status, coarse)
 
 
-_build_compiled = eqx.filter_jit(_build)
+build_problem = eqx.filter_jit(_build)
+"""The build as one compiled call per capacity bucket (jitted: op by op it cost ≈ 100 ms of
+dispatch at the Python boundary, and under `jax.vmap` it crashed XLA:CPU, JAX 0.10.2)."""
+
+
+class _PlaneGrid(NamedTuple):
+    """One previous pattern's grid before the capacity cap (DECISIONS.md "Patterns and grid")."""
+
+    selected: Bool[Array, " N"]  # previous points within d of the plane
+    coords: tuple[Array, Array]  # their (η, ζ) on the plane, metres
+    lo: list  # smallest selected η and ζ (0 when none is selected)
+    ext: list  # extension e per axis, cells
+    size: list  # m + 2e + 1 per axis, cells
+
+
+def _plane_grid(A: Float[Array, "N 3"], valid: Bool[Array, " N"], j: int, offset: float, d, extension) -> _PlaneGrid:
+    """The grid of the pattern on the plane with normal axis j at `offset`·d (frame n)."""
+    h = A[:, j] - offset * d
+    uv = (A[:, (j + 1) % 3], A[:, (j + 2) % 3])
+    sel = valid & (jnp.abs(h) <= d)
+    any_sel = jnp.any(sel)
+    lo = [jnp.where(any_sel, jnp.min(jnp.where(sel, c, jnp.inf)), 0.0) for c in uv]
+    hi = [jnp.where(any_sel, jnp.max(jnp.where(sel, c, -jnp.inf)), 0.0) for c in uv]
+    m = [round_half_up((h_ - l_) / d) for l_, h_ in zip(lo, hi, strict=True)]
+    e = [round_half_up(extension * mk) for mk in m]
+    return _PlaneGrid(sel, uv, lo, e, [mk + 2 * ek + 1 for mk, ek in zip(m, e, strict=True)])
 
 
 def _patterns(
@@ -268,18 +351,12 @@ def _patterns(
     lo, ext, size, selected, filled_n, fields_r, fields_rm = [], [], [], [], [], [], []
     cells, krs, plane_ids, kr_sums = [], [], [], []
     for i, (j, offset) in enumerate(planes):
-        h = A[:, j] - offset * d
-        uv = (A[:, (j + 1) % 3], A[:, (j + 2) % 3])
-        sel = prev_valid & (jnp.abs(h) <= d)
-        any_sel = jnp.any(sel)
-        lo_i = [jnp.where(any_sel, jnp.min(jnp.where(sel, c, jnp.inf)), 0.0) for c in uv]
-        hi_i = [jnp.where(any_sel, jnp.max(jnp.where(sel, c, -jnp.inf)), 0.0) for c in uv]
-        m = [round_half_up((h_ - l_) / d) for l_, h_ in zip(lo_i, hi_i, strict=True)]
-        e = [round_half_up(config.extension * mk) for mk in m]
-        n = [mk + 2 * ek + 1 for mk, ek in zip(m, e, strict=True)]
+        grid = _plane_grid(A, prev_valid, j, offset, d, config.extension)
+        sel, lo_i, e = grid.selected, grid.lo, grid.ext
+        n = grid.size
         status = status | jnp.where((n[0] > C) | (n[1] > C), PROBLEM_GRID_OVERFLOW, 0)
         n = [jnp.minimum(nk, C) for nk in n]
-        idx = [round_half_up((c - l_) / d) + ek for c, l_, ek in zip(uv, lo_i, e, strict=True)]
+        idx = [round_half_up((c - l_) / d) + ek for c, l_, ek in zip(grid.coords, lo_i, e, strict=True)]
         inside = sel & (idx[0] < n[0]) & (idx[1] < n[1])
         counts = (
             jnp.zeros((C, C), dtype)

@@ -85,6 +85,60 @@ def _mesh_ranges(mesh: Mesh, R, t, rays) -> Float[Array, " P"]:
     return best
 
 
+FLYING_EDGE = 0.05
+"""A range step (metres) between 4-neighbouring pixels above which both lie on a depth edge."""
+
+
+def _image(camera: Camera, x: Array) -> Array:
+    return x.reshape(camera.height, camera.width, *x.shape[1:])
+
+
+def _noise_sigma(camera: Camera, rng, hit, rays) -> Float[Array, " P"]:
+    """Range noise σ of each pixel (metres): `camera.noise_sigma`, or the ToF model of
+    [`jaxpose.Camera`][] when `noise_range_ref` > 0. The angle of incidence comes from the
+    noise-free range image: the normal of the surface through the pixel's right and lower
+    neighbours (left and upper at the image border or across a depth edge; head-on where
+    neither pair is on the same surface)."""
+    if isinstance(camera.noise_range_ref, int | float) and camera.noise_range_ref == 0:
+        return jnp.full_like(rng, camera.noise_sigma)
+    P = _image(camera, jnp.stack([r * rng for r in rays], -1))
+    ok = _image(camera, hit)
+
+    def step(axis):
+        fwd, bwd = jnp.roll(P, -1, axis) - P, P - jnp.roll(P, 1, axis)
+        fwd_ok = ok & jnp.roll(ok, -1, axis) & (jnp.linalg.norm(fwd, axis=-1) < FLYING_EDGE)
+        bwd_ok = ok & jnp.roll(ok, 1, axis) & (jnp.linalg.norm(bwd, axis=-1) < FLYING_EDGE)
+        return jnp.where(fwd_ok[..., None], fwd, bwd), fwd_ok | bwd_ok
+
+    (du, u_ok), (dv, v_ok) = step(1), step(0)
+    normal = jnp.cross(du, dv)
+    size = jnp.linalg.norm(normal, axis=-1)
+    ray = _image(camera, jnp.stack(rays, -1))
+    cos = jnp.abs(jnp.sum(normal * ray, -1)) / jnp.where(size > 0, size, 1.0)
+    cos = jnp.where(u_ok & v_ok & (size > 0), cos, 1.0).ravel()
+    return camera.noise_sigma * (rng / camera.noise_range_ref) / jnp.sqrt(jnp.maximum(cos, 0.1))
+
+
+def _flying_pixels(camera: Camera, rng, hit, key) -> Float[Array, " P"]:
+    """Mixed ranges at depth edges: with probability `camera.flying`, a pixel whose randomly
+    chosen 4-neighbour is a hit more than `FLYING_EDGE` away in range takes a range uniformly
+    between the two (a pixel that sees both surfaces)."""
+    if isinstance(camera.flying, int | float) and camera.flying == 0:
+        return rng
+    k_side, k_mix, k_on = jax.random.split(key, 3)
+    R, ok = _image(camera, rng), _image(camera, hit)
+    shifts = ((0, 1), (0, -1), (1, 0), (-1, 0))
+    side = jax.random.randint(k_side, R.shape, 0, 4)
+    neighbour = jnp.stack([jnp.roll(R, s, (0, 1)) for s in shifts])
+    neighbour_ok = jnp.stack([jnp.roll(ok, s, (0, 1)) for s in shifts])
+    pick = lambda a: jnp.take_along_axis(a, side[None], 0)[0]  # noqa: E731
+    other, other_ok = pick(neighbour), pick(neighbour_ok)
+    edge = ok & other_ok & (jnp.abs(other - R) > FLYING_EDGE)
+    mix = jax.random.uniform(k_mix, R.shape, R.dtype)
+    on = edge & (jax.random.uniform(k_on, R.shape) < camera.flying)
+    return jnp.where(on, R + mix * (other - R), R).ravel()
+
+
 def _check_inputs(camera: Camera, target: Target, R, t, key) -> None:
     check_rotation(R)
     as_float_array(t, "t", (3,))
@@ -104,8 +158,11 @@ def _check_inputs(camera: Camera, target: Target, R, t, key) -> None:
         raise ValueError("camera range gate needs 0 ≤ range_min < range_max (metres).")
     if float(camera.noise_sigma) < 0 or not 0 <= float(camera.dropout) < 1:
         raise ValueError("camera noise_sigma must be ≥ 0 and dropout in [0, 1).")
-    if key is None and (float(camera.noise_sigma) > 0 or float(camera.dropout) > 0):
-        raise ValueError("the camera has noise or dropout: pass a PRNG key to simulate(…, key=…).")
+    if float(camera.noise_range_ref) < 0 or not 0 <= float(camera.flying) <= 1:
+        raise ValueError("camera noise_range_ref must be ≥ 0 (metres) and flying in [0, 1].")
+    noisy = float(camera.noise_sigma) > 0 or float(camera.dropout) > 0 or float(camera.flying) > 0
+    if key is None and noisy:
+        raise ValueError("the camera has noise, dropout or flying pixels: pass a PRNG key to simulate(…, key=…).")
 
 
 def simulate(
@@ -146,7 +203,10 @@ def simulate(
     valid = hit
     if key is not None:
         k_noise, k_drop = jax.random.split(key)
-        rng = rng + camera.noise_sigma * jax.random.normal(k_noise, rng.shape, rng.dtype)
+        k_fly = jax.random.fold_in(key, 2)
+        sigma = _noise_sigma(camera, rng, hit, rays)
+        rng = _flying_pixels(camera, rng, hit, k_fly)
+        rng = rng + sigma * jax.random.normal(k_noise, rng.shape, rng.dtype)
         valid = valid & (jax.random.uniform(k_drop, rng.shape) >= camera.dropout)
     valid = valid & (rng >= camera.range_min) & (rng <= camera.range_max)
     rng = jnp.where(valid, rng, 0.0)

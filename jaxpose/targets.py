@@ -163,3 +163,65 @@ def chibis_m(rod: float = 0.02) -> Boxes:
         centers.append([a / 2 - rod, sy * (b / 2 - rod), c / 2 + short / 2])
         sizes.append([rod, rod, short])
     return Boxes.create(centers, sizes)
+
+
+def _mesh(*parts) -> Mesh:
+    tris = np.concatenate(parts)
+    return Mesh(jnp.asarray(tris, jnp.result_type(float)))
+
+
+def satellite() -> Mesh:
+    """A satellite 3.8 m across (ours): a cylindrical bus (radius 0.55 m, 1.4 m long along z_t),
+    two 1.2 × 0.6 m solar wings on booms along ±y_t, and a 0.7 m dish on a mast off the +z
+    end, offset from the axis; a thruster block under the −z end. Mesh, about 300 triangles."""
+    from . import shapes
+
+    parts = [shapes.frustum(0.55, 0.55, 1.4, "z")]
+    for s in (1, -1):
+        parts.append(shapes.box((0.04, 0.15, 0.04), (0, s * 0.625, 0.2)))
+        parts.append(shapes.box((0.6, 1.2, 0.02), (0, s * 1.3, 0.2)))
+    parts.append(shapes.frustum(0.03, 0.03, 0.25, "z", (0.2, 0.0, 0.825), segments=8, caps=False))
+    parts.append(shapes.dish(0.35, 0.12, "z", (0.2, 0.0, 0.95)))
+    parts.append(shapes.box((0.25, 0.2, 0.15), (-0.25, 0.15, -0.775)))
+    return _mesh(*parts)
+
+
+def upper_stage() -> Mesh:
+    """A spent upper stage 2.6 m long (ours): a capped cylinder (radius 0.5 m, 2.0 m long along
+    x_t), a nozzle (0.15 → 0.4 m radius, 0.6 m long) behind it, a cable tunnel along its side,
+    an adapter ring at the front and a small fitting. Nearly axisymmetric: only the fittings
+    fix the roll about x_t. Mesh, about 250 triangles."""
+    from . import shapes
+
+    parts = [shapes.frustum(0.5, 0.5, 2.0, "x", (0.3, 0, 0))]
+    parts.append(shapes.frustum(0.4, 0.15, 0.6, "x", (-1.0, 0, 0), caps=False))
+    parts.append(shapes.box((1.6, 0.06, 0.05), (0.3, 0.0, 0.52)))
+    parts.append(shapes.frustum(0.42, 0.42, 0.08, "x", (1.34, 0, 0), caps=False))
+    parts.append(shapes.box((0.15, 0.15, 0.12), (0.6, 0.47, -0.1)))
+    return _mesh(*parts)
+
+
+def fragment() -> Mesh:
+    """An irregular fragment (ours): a 1.4 × 0.9 m panel with a torn outline, folded by 35°
+    along a line across it, with a stiffener along one edge. Open surfaces, about 130 triangles."""
+    from . import shapes
+
+    panel = shapes.torn_panel(1.4, 0.9, np.radians(35.0), seed=7)
+    stiffener = shapes.box((0.8, 0.04, 0.04), (-0.2, -0.36, 0.02))
+    return _mesh(panel, stiffener)
+
+
+DEBRIS_FILE = "data/debris.obj"
+"""A rock-like closed mesh 1.6 × 1.1 × 0.8 m in the package (`shapes.rock`), loaded from the
+file so that the benchmark exercises [`Mesh.load`][jaxpose.targets.Mesh.load]."""
+
+
+def debris() -> Mesh:
+    """The packaged rock-like mesh (`DEBRIS_FILE`), loaded through `Mesh.load` (needs trimesh)."""
+    from importlib.resources import files
+
+    return Mesh.load(str(files("jaxpose") / DEBRIS_FILE))
+
+
+BUILT_IN = ("n1", "n5", "chibis_m", "satellite", "upper_stage", "fragment", "debris")
+"""The names of the built-in targets (functions of this module)."""
