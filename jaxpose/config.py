@@ -111,6 +111,10 @@ class Config(eqx.Module):
       side) the fine stage slid 24 cm along a face, its hard score falling from ≈ 0.9 to 0.6.
       `thorough()`, `wide()` and `tracking()` keep 1, as when their committed results were
       measured.
+    - `fine_from_rest`: also run the fine stage from p = 0 (no motion) and keep whichever
+      result explains more of the current cloud (`jaxpose.estimate.better_fine`): over the
+      small motions between frames the surface fit's own basin often holds the truth where
+      the pattern search settled a few degrees off.
     - `fine_rounds`: most match-then-solve rounds (static); `fine_steps`, `fine_tol`: LM's
       step limit per round and rtol = atol in units of 1° / 1 cm (static). 1e-4 (was 1e-6):
       on the paper's pairs × 3 keys every result is within 0.00004° / 0.00004 cm of the
@@ -154,6 +158,7 @@ class Config(eqx.Module):
     fine_inlier: float = 0.03
     fine_planar_fraction: float = 0.7
     fine_guard: float = 0.05
+    fine_from_rest: bool = eqx.field(static=True, default=True)
     fine: Literal["point_to_plane", "none"] = eqx.field(static=True, default="point_to_plane")
     fine_points: int = eqx.field(static=True, default=896)
     fine_neighbours: int = eqx.field(static=True, default=20)

@@ -7,6 +7,7 @@ least squares on the near-plane points, `jaxpose.fine`) → hard score reported.
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
@@ -90,6 +91,17 @@ class Estimate(eqx.Module):
         return self.status == SUCCESS
 
 
+FINE_TIE = 0.01
+"""Inlier fractions closer than this count as equal when two fine-stage results are compared."""
+
+
+def better_fine(a, b):
+    """The fine-stage result that explains more of the current cloud: the larger inlier
+    fraction, or, within `FINE_TIE`, the smaller weighted RMS residual."""
+    pick_b = (b.inliers > a.inliers + FINE_TIE) | ((b.inliers >= a.inliers - FINE_TIE) & (b.rms < a.rms))
+    return jax.tree.map(lambda x, y: jnp.where(pick_b, y, x), a, b)
+
+
 @eqx.filter_jit
 def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Estimate:
     """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
@@ -102,6 +114,8 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
     fine_steps = jnp.asarray(0, jnp.int32)
     if config.fine != "none":
         fine = fine_refine(problem, config, loc.params)
+        if config.fine_from_rest:
+            fine = better_fine(fine, fine_refine(problem, config, jnp.zeros_like(loc.params)))
         # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
         # free it can slide along it (24 cm on a noise-free view with 1024 points a side, in a
         # development run of experiments/bench_estimate.py). Its result is kept unless the method's reference

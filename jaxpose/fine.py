@@ -62,6 +62,12 @@ ROBUST_SCALE = 3.0
 (1.4826 × median |r| of the inliers), at least `ROBUST_FLOOR`: flying pixels, surface seen in
 one cloud only and mismatched edges weigh little, and the noise's own spread keeps weight."""
 
+POINT_WEIGHT = 0.01
+"""Weight of the point-to-point residuals beside the point-to-plane one (both in metres):
+where the visible faces leave a direction free (a slide along an edge or a face), the
+point-to-plane residuals are flat and the point-to-point ones, though coarser (they carry
+the sampling step), fix it; elsewhere the plane term dominates."""
+
 ROBUST_FLOOR = 5e-4
 """Smallest Cauchy scale c, metres: noise-free residuals do not shrink it to nothing."""
 
@@ -94,7 +100,8 @@ class FineResult(eqx.Module):
     - `inliers`: fraction of the selected current points within `fine_inlier` of the
       previous points, with the last round's matches (made where that round started, within
       `ROUND_TOL` of `params` when converged); 0 when none was selected.
-    - `rms`: root mean square point-to-plane residual of those inliers at `params`, metres.
+    - `rms`: root mean square point-to-plane residual of those inliers at `params`, each
+      weighted by its Cauchy weight (the measure the stage minimises), metres.
     - `used`: number of selected current points.
     """
 
@@ -204,6 +211,7 @@ class Matches(NamedTuple):
     normals: Float[Array, "3 S"]
     offsets: Float[Array, " S"]
     valid: Bool[Array, " S"]
+    points: Float[Array, "3 S"]
 
 
 def _residuals(p, b, matched: Matches, weight):
@@ -216,7 +224,7 @@ def _residuals(p, b, matched: Matches, weight):
 def _correspond(p, b, live, fine: FineCloud, inlier) -> tuple[Matches, Bool[Array, " S"]]:
     """The nearest previous point (and normal) of each current point at p, and the inlier mask."""
     nearest, dist = _match(_moved(p, b), fine)
-    matched = Matches(fine.normals[:, nearest], fine.offsets[nearest], fine.valid[nearest])
+    matched = Matches(fine.normals[:, nearest], fine.offsets[nearest], fine.valid[nearest], fine.points[:, nearest])
     return matched, live & matched.valid & (dist < inlier)
 
 
@@ -275,7 +283,13 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
         y, _, rounds, steps, _ = state
         matched, weight = _correspond(y * scale, b, live, fine, inlier)
         root_w = jnp.sqrt(_robust_weights(_residuals(y * scale, b, matched, weight), weight))
-        fn = lambda y_, _: root_w * _residuals(y_ * scale, b, matched, weight) / RESIDUAL_UNIT  # noqa: E731
+
+        def fn(y_, _):
+            p_ = y_ * scale
+            plane = root_w * _residuals(p_, b, matched, weight)
+            point = POINT_WEIGHT * root_w * (_moved(p_, b) - matched.points)
+            return plane / RESIDUAL_UNIT, point / RESIDUAL_UNIT
+
         sol = optx.least_squares(fn, solver, y, None, max_steps=config.fine_steps, throw=False)
         moved = jnp.max(jnp.abs(sol.value - y))
         return sol.value, moved, rounds + 1, steps + sol.stats["num_steps"], (matched, weight)
@@ -294,13 +308,14 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
     # within ROUND_TOL of p when converged) rather than a fresh nearest-neighbour search at p,
     # which would cost as much as a round's matching.
     r = _residuals(p, b, matched, weight)
+    w = _robust_weights(r, weight)
     n_in, used = jnp.sum(weight), jnp.sum(live)
     return FineResult(
         params=p,
         converged=moved <= ROUND_TOL,
         steps=jnp.asarray(steps, jnp.int32),
         inliers=jnp.where(used > 0, n_in / jnp.maximum(used, 1), 0.0),
-        rms=jnp.sqrt(jnp.sum(r**2) / jnp.maximum(n_in, 1)),
+        rms=jnp.sqrt(jnp.sum(w * r**2) / jnp.maximum(jnp.sum(w), jnp.finfo(dtype).tiny)),
         used=used.astype(jnp.int32),
     )
 

@@ -44,8 +44,10 @@ def test_paper_pairs_within_issue_bounds(paper_clouds, shape, variant):
     assert angle_deg <= 0.05 and shift_cm <= 0.05, (angle_deg, shift_cm)
     assert angle_deg <= 0.001 and shift_cm <= 0.001, (angle_deg, shift_cm)  # measured: < 5e-5° in float32
     # Noise-free: an exact fit. `inliers` is the share of current points within 3 cm of a planar
-    # previous point: 0.68–0.85 with the default's 896 points a side (0.75+ with 2048).
-    assert float(est.inliers) > 0.65 and float(est.fine_rms) < 1e-5 and bool(est.fine_kept)
+    # previous point: 0.65–0.85 with the default's 896 points a side (0.75+ with 2048). The
+    # Cauchy-weighted RMS keeps the down-weighted edge matches (a current point near a panel's
+    # edge matched to the other face's plane, centimetres off at weight ≈ 1e-3): 2–3e-5 m.
+    assert float(est.inliers) > 0.65 and float(est.fine_rms) < 1e-4 and bool(est.fine_kept)
     assert 0 < int(est.fine_steps) <= CONFIG.fine_rounds * CONFIG.fine_steps
 
 
@@ -116,7 +118,7 @@ def test_the_search_scores_a_coarse_problem_of_the_same_frame(paper_clouds):
     np.testing.assert_array_equal(np.asarray(coarse.frame.axes), np.asarray(problem.frame.axes))
     assert coarse.coarse is None and int(coarse.fine.valid.sum()) == 0
     # A grid of ⌈C/3⌉ + 2 cells holds its patterns (cells three times as wide).
-    assert coarse.grid_cells == -(-CONFIG.grid_cells // 3) + 2 and int(coarse.status) == 0
+    assert coarse.grid_cells == -(-problem.grid_cells // 3) + 2 and int(coarse.status) == 0
     assert jp.Problem.build(prev, curr, jp.Config.fast(max_points=5120, coarse=1)).search_problem.coarse is None
 
 
