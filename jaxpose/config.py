@@ -234,7 +234,8 @@ class Config(eqx.Module):
         in the field of view, never below `camera.range_min`): for code that calls
         `estimate` under `jax.jit`, where the clouds cannot size it.
 
-        - points: the pixels the target's bounding sphere can cover at that distance;
+        - points: the pixels the target's bounding sphere can cover at that distance (at most
+          the camera's frame);
         - `grid_cells`: (1 + 2·extension)·extent/d + 3 cells plus the margin of `sized_config`;
         - `max_cells`: 4π·extent/d, twice the cells along the outline of a slab through a
           convex body of that size, at least `JIT_MAX_CELLS` / 4.
@@ -247,8 +248,11 @@ class Config(eqx.Module):
         distance = max(fit, float(camera.range_min)) if distance is None else distance
         radius = extent / 2
         half_angle = math.asin(min(1.0, radius / max(distance, radius)))
-        share = min(1.0, (math.tan(half_angle) / float(camera.tan_half_x)) * (math.tan(half_angle) / float(camera.tan_half_y)))
-        pixels = bucket(math.ceil(share * camera.width * camera.height) + 1, 512)
+        share = min(
+            1.0, (math.tan(half_angle) / float(camera.tan_half_x)) * (math.tan(half_angle) / float(camera.tan_half_y))
+        )
+        frame = camera.width * camera.height
+        pixels = min(bucket(math.ceil(share * frame) + 1, 512), frame)  # never more than a frame
         cells = (1 + 2 * self.extension) * extent / self.d + 3 + GRID_MARGIN
         fill = {"max_points": pixels, "max_prev_points": pixels, "grid_cells": bucket(math.ceil(cells), 32)}
         fill["max_cells"] = bucket(max(math.ceil(4 * math.pi * extent / self.d), JIT_MAX_CELLS // 4), 64)

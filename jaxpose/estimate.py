@@ -11,13 +11,13 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from ._checks import is_concrete
 from .cloud import Cloud
 from .config import Config
 from .fine import fine_refine
 from .frame import PlaneFrame
 from .objective import hard_score, soft_score
 from .poses import motion_from_displacement
-from ._checks import is_concrete
 from .problem import Problem, build_problem, check_range, grow_capacities, raise_for_codes, sized_config
 from .search import local_refine, restarted_search
 

@@ -24,6 +24,7 @@ BITS = 10
 EMPTY = jnp.iinfo(jnp.int32).max
 """The key of an invalid point: sorts last, matches no voxel."""
 
+
 class VoxelGrid(eqx.Module):
     """Points binned in voxels: `keys` sorted, `order` the point index of each sorted key,
     `lo` the grid's corner (metres) and `size` the voxel edge h (metres)."""
@@ -122,14 +123,17 @@ def spread_subset(mask: Bool[Array, " N"], size: int) -> tuple[Int[Array, " size
 
 def voxel_spacing(points: Float[Array, "3 N"], valid: Bool[Array, " N"], samples: int = 256) -> Float[Array, ""]:
     """The median distance from a point to its nearest neighbour (metres), measured exactly on
-    `samples` points spread evenly over the valid ones: the cloud's sampling step."""
+    `samples` points spread evenly over the valid ones: the cloud's sampling step. 1 m
+    where no valid point has a distinct neighbour (fewer than two distinct points: there is
+    nothing to search, and the voxels only need a finite size)."""
     idx, live = spread_subset(valid, samples)
     q = points[:, idx]
     d2 = sum((q[k][:, None] - points[k][None, :]) ** 2 for k in range(3))
     d2 = jnp.where(valid[None, :] & (d2 > 0), d2, jnp.inf)
     nn = jnp.sqrt(jnp.min(d2, axis=1))
     nn = jnp.where(live & jnp.isfinite(nn), nn, jnp.nan)
-    return jnp.nanmedian(nn)
+    step = jnp.nanmedian(nn)
+    return jnp.where(jnp.isfinite(step), step, 1.0)
 
 
 __all__ = ["VoxelGrid", "candidates", "k_nearest", "nearest", "spread_subset", "voxel_grid", "voxel_spacing"]

@@ -28,8 +28,8 @@ from ._checks import is_concrete
 from .cloud import Cloud
 from .config import Config
 from .fine import FineCloud, fine_cloud
-from .neighbours import spread_subset
 from .frame import FRAME_STATUS_TEXT, PlaneFrame, plane_frame
+from .neighbours import spread_subset
 
 # Bits of Problem.status.
 PROBLEM_FRAME = 1  # the plane frame is not usable (see frame.status)

@@ -141,7 +141,9 @@ def _row(case: Case, method: str, **kw) -> dict:
 def run_jaxpose(cases: list[Case], config=None, seed: int = 0, progress: Callable[[], None] | None = None):
     """The public `jaxpose.estimate` on each case (key = (seed, i)). Returns the rows and, per
     capacity bucket met, the first call's time (compilation included)."""
+    from .config import Config
     from .estimate import STATUS_NAME, estimate
+    from .problem import sized_config
 
     rows, first_calls = [], {}
     for i, case in enumerate(cases):
@@ -153,7 +155,8 @@ def run_jaxpose(cases: list[Case], config=None, seed: int = 0, progress: Callabl
         except ValueError as err:
             rows.append(_row(case, "jaxpose", refused=str(err)))
             continue
-        bucket = tuple(int(x) for x in est.capacities) if hasattr(est, "capacities") else ()
+        sized = sized_config(case.prev, case.curr, config or Config())
+        bucket = (sized.max_points, sized.max_prev_points, sized.grid_cells, sized.max_cells)
         if bucket not in first_calls:
             first_calls[bucket] = first
             t0 = time.perf_counter()
@@ -162,8 +165,13 @@ def run_jaxpose(cases: list[Case], config=None, seed: int = 0, progress: Callabl
         else:
             seconds = first
         rows.append(
-            _row(case, "jaxpose", **errors(case, est.rotation, est.translation), seconds=seconds,
-                 status=STATUS_NAME[int(est.status)])
+            _row(
+                case,
+                "jaxpose",
+                **errors(case, est.rotation, est.translation),
+                seconds=seconds,
+                status=STATUS_NAME[int(est.status)],
+            )
         )
         if progress is not None:
             progress()
@@ -257,8 +265,15 @@ def summarise(rows: list[dict], by=("sigma_cm",)) -> list[dict]:
 
 def markdown(summary: list[dict], by=("sigma_cm",)) -> str:
     """The summary as a Markdown table."""
-    head = [k for k in by] + ["method", "found", "refused", "false success", "rotation median / p90, °",
-                              "centroid median / p90, cm", "median ms"]
+    head = [k for k in by] + [
+        "method",
+        "found",
+        "refused",
+        "false success",
+        "rotation median / p90, °",
+        "centroid median / p90, cm",
+        "median ms",
+    ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for s in summary:
         cells = [f"{s[k]:g}" if isinstance(s[k], float) else str(s[k]) for k in by]
@@ -275,5 +290,51 @@ def markdown(summary: list[dict], by=("sigma_cm",)) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["FOUND_CM", "LEVELS_CM", "PEERS", "Case", "errors", "make_cases", "markdown", "run_jaxpose", "run_peer",
-           "summarise"]
+def available_peers() -> tuple[dict, dict]:
+    """The benchmark's peers that import here, and for the others the import error."""
+    found, missing = {}, {}
+    for name, (module, align) in PEERS.items():
+        try:
+            __import__(module)
+            found[name] = align
+        except (ImportError, OSError) as err:  # Open3D raises ImportError for a missing libusb
+            missing[name] = f"{type(err).__name__}: {err}"
+    return found, missing
+
+
+def plot(summary: list[dict], path) -> None:
+    """Median rotation and centroid errors against the noise level, one line per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+    for method in dict.fromkeys(s["method"] for s in summary):
+        mine = sorted((s for s in summary if s["method"] == method), key=lambda s: s["sigma_cm"])
+        sig = [s["sigma_cm"] for s in mine]
+        axes[0].plot(sig, [s["median_rotation_deg"] for s in mine], "o-", label=method)
+        axes[1].plot(sig, [s["median_centroid_cm"] for s in mine], "o-", label=method)
+    for ax, label in zip(axes, ("median rotation error, °", "median centroid error, cm"), strict=True):
+        ax.set_xlabel("range noise σ at 5 m, cm")
+        ax.set_ylabel(label)
+        ax.set_yscale("log")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+__all__ = [
+    "FOUND_CM",
+    "LEVELS_CM",
+    "PEERS",
+    "Case",
+    "errors",
+    "make_cases",
+    "markdown",
+    "run_jaxpose",
+    "run_peer",
+    "summarise",
+]

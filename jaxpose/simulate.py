@@ -116,7 +116,10 @@ def _noise_sigma(camera: Camera, rng, hit, rays) -> Float[Array, " P"]:
     ray = _image(camera, jnp.stack(rays, -1))
     cos = jnp.abs(jnp.sum(normal * ray, -1)) / jnp.where(size > 0, size, 1.0)
     cos = jnp.where(u_ok & v_ok & (size > 0), cos, 1.0).ravel()
-    return camera.noise_sigma * (rng / camera.noise_range_ref) / jnp.sqrt(jnp.maximum(cos, 0.1))
+    # Under jit the reference is traced: a reference of 0 must still mean a constant σ.
+    ref = camera.noise_range_ref
+    growth = (rng / jnp.where(ref > 0, ref, 1.0)) / jnp.sqrt(jnp.maximum(cos, 0.1))
+    return camera.noise_sigma * jnp.where(ref > 0, growth, 1.0)
 
 
 def _flying_pixels(camera: Camera, rng, hit, key) -> Float[Array, " P"]:

@@ -60,3 +60,25 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.nodeid.endswith("reproduction.ipynb"):
             item.add_marker(pytest.mark.slow)
+
+
+MAX_MAPPINGS = 30_000  # Linux allows 65,530 memory mappings per process (vm.max_map_count)
+
+
+def _memory_mappings() -> int:
+    try:
+        with open("/proc/self/maps") as maps:
+            return sum(1 for _ in maps)
+    except OSError:  # not Linux: no per-process mapping limit to watch
+        return 0
+
+
+@pytest.fixture(autouse=True)
+def release_compiled_programs():
+    """Each compiled XLA:CPU program holds ≈ 3,000 memory mappings while it is cached, so a
+    session that compiles a few dozen capacity buckets would exhaust Linux's per-process
+    limit and abort. Clearing JAX's in-memory caches when the count grows frees them; the
+    persistent compilation cache above makes the recompiles that follow cheap."""
+    yield
+    if _memory_mappings() > MAX_MAPPINGS:
+        jax.clear_caches()

@@ -110,8 +110,10 @@ def test_tracking_preset_fits_every_current_point(paper_clouds):
     valid_curr, valid_prev = int(curr.valid.sum()), int(prev.valid.sum())
     assert counts["whole"][0] == min(valid_curr, WHOLE_CLOUD.fine_points)
     assert counts["slabs"][0] < counts["whole"][0] / 2
-    # On the previous side every point is a candidate; the 70 % most planar keep a normal.
-    assert abs(counts["whole"][1] - 0.7 * min(valid_prev, WHOLE_CLOUD.fine_points)) <= 1
+    # On the previous side every point is a candidate; the 70 % most planar of those with a
+    # normal keep it (a point with fewer than 3 neighbours in reach has none: under 1 % here).
+    candidates = min(valid_prev, WHOLE_CLOUD.fine_points)
+    assert 0.99 * 0.7 * candidates <= counts["whole"][1] <= 0.7 * candidates + 1
 
 
 @pytest.mark.parametrize("config", [CONFIG, WHOLE_CLOUD], ids=["slabs", "whole-cloud"])
@@ -127,6 +129,9 @@ def test_fine_stage_recovers_the_displacement_from_a_start_two_degrees_off(paper
     # Noise-free planar faces: the matched residuals vanish at the optimum (measured 0.00 mm);
     # 70 % of the previous points keep a normal, so some current points have no match within
     # 3 cm: 0.69 of them with the default's 896 points a side (0.75+ with 2048).
-    assert float(result.inliers) > 0.65 and float(result.rms) < 1e-5
+    # With planes through the neighbourhood centroids (the whole-cloud preset), a neighbourhood
+    # that reaches over an edge puts its plane a few µm off the face: 0.011 mm RMS measured.
+    rms_bound = 1e-5 if config.fine_anchor == "point" else 2e-5
+    assert float(result.inliers) > 0.65 and float(result.rms) < rms_bound
     # The start was more than 1° off, so the recovery above is the stage's work.
     assert np.degrees(np.abs(np.asarray(start - truth))[:3]).max() > 1.0

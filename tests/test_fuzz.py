@@ -14,7 +14,10 @@ import jaxpose as jp
 from jaxpose.estimate import STATUS_TEXT, SUCCESS
 
 N = 200  # points per fuzzed cloud: one shape, one compile
-CONFIG = jp.Config.fast(max_points=256, fine_points=256, population=8, generations=4, local_steps=5)
+# Every capacity fixed, and large enough for any N-point cloud that is not refused, so that
+# each entry point compiles once (sized capacities would give each fuzzed cloud its bucket).
+CAPACITIES = {"max_points": 256, "max_prev_points": 256, "grid_cells": 128, "max_cells": 256}
+CONFIG = jp.Config.fast(fine_points=256, population=8, generations=4, local_steps=5, **CAPACITIES)
 FUZZ = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
 
 KINDS = ("blob", "collinear", "coplanar", "duplicates", "ambiguous", "huge", "tiny", "far", "ints")
@@ -84,8 +87,8 @@ def _usable_problem(prev, curr):
         assert _is_documented(err)
         return None
     assert int(problem.status) == 0
-    for leaf in jax.tree.leaves(problem):
-        assert np.all(np.isfinite(np.asarray(leaf, float)))
+    for path, leaf in jax.tree_util.tree_leaves_with_path(problem):
+        assert np.all(np.isfinite(np.asarray(leaf, float))), jax.tree_util.keystr(path)
     return problem
 
 

@@ -1,0 +1,112 @@
+"""Any target, any view: capacities sized from the clouds, the voxel-grid neighbour search
+against brute force, the ToF sensor model, and the realistic benchmark's pairs."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxpose as jp
+from jaxpose import neighbours, realistic, shapes, targets
+from jaxpose.problem import bucket, sized_config
+
+
+def test_buckets_are_few_and_cover_the_count():
+    sizes = {bucket(n, 64) for n in range(1, 5000)}
+    assert sorted(sizes)[:6] == [64, 96, 128, 192, 256, 384]
+    for n in (1, 63, 64, 65, 97, 1000, 4097):
+        b = bucket(n, 64)
+        assert b >= n and b <= max(64, 1.5 * n)
+
+
+def test_voxel_grid_nearest_matches_brute_force_within_reach():
+    rng = np.random.default_rng(0)
+    # A noisy, sampled surface (a bent sheet) and queries near it.
+    u, v = rng.uniform(-0.5, 0.5, (2, 3000))
+    pts = np.stack([u, v, 0.2 * np.abs(u) + 0.003 * rng.normal(size=u.size)]).astype(np.float32)
+    valid = rng.uniform(size=u.size) > 0.1
+    queries = pts[:, :500] + 0.01 * rng.normal(size=(3, 500)).astype(np.float32)
+    step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
+    grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
+    idx, dist = neighbours.nearest(grid, jnp.asarray(pts), jnp.asarray(queries), 16)
+    d2 = ((queries.T[:, None, :] - pts.T[None]) ** 2).sum(-1)
+    d2[:, ~valid] = np.inf
+    exact = np.sqrt(d2.min(1))
+    reach = exact < 2 * step
+    assert reach.mean() > 0.5
+    np.testing.assert_allclose(np.asarray(dist)[reach], exact[reach], rtol=1e-5)
+    assert np.all(np.asarray(dist) >= exact - 1e-6)  # never nearer than the truth
+    knn, kd2 = neighbours.k_nearest(grid, jnp.asarray(pts), jnp.asarray(queries), 5, 16)
+    kd2 = np.asarray(kd2)
+    exact5 = np.sort(d2, axis=1)[:, :5]
+    within = exact5[:, -1] < (2 * step) ** 2
+    np.testing.assert_allclose(kd2[within], exact5[within], rtol=1e-4, atol=1e-9)
+
+
+def test_tof_noise_grows_with_range_and_flying_pixels_sit_between_surfaces():
+    target = targets.n5()
+    R = np.asarray(jp.rotation(0.4, 0.5, 0.2))
+    key = jax.random.key(3)
+    spreads = []
+    for z in (3.0, 6.0):
+        camera = jp.Camera.camcube2(noise_sigma=0.01, noise_range_ref=5.0)
+        noisy = jp.simulate(camera, target, R, np.array([0, 0, z]), key=key)
+        clean = jp.simulate(jp.Camera.camcube2(), target, R, np.array([0, 0, z]))
+        both = np.asarray(noisy.valid & clean.valid)
+        spreads.append(np.median(np.linalg.norm(np.asarray(noisy.points - clean.points)[both], axis=1)))
+    assert spreads[1] > 1.6 * spreads[0]  # σ ∝ range: twice the range, about twice the noise
+    flying = jp.simulate(jp.Camera.camcube2(flying=1.0), target, R, np.array([0, 0, 4.0]), key=key)
+    clean = jp.simulate(jp.Camera.camcube2(), target, R, np.array([0, 0, 4.0]))
+    moved = np.linalg.norm(np.asarray(flying.points - clean.points), axis=1) > 1e-6
+    assert 0 < moved.sum() < 0.2 * int(clean.num_valid)  # only depth-edge pixels mix
+    with pytest.raises(ValueError, match="PRNG key"):
+        jp.simulate(jp.Camera.camcube2(flying=0.5), target, R, np.array([0, 0, 4.0]))
+
+
+def test_built_in_targets_are_the_advertised_sizes():
+    for name in targets.BUILT_IN:
+        extent = realistic._extent(getattr(targets, name)())
+        assert 0.9 < extent < 4.0, (name, extent)
+    assert realistic._extent(targets.satellite()) == pytest.approx(3.8, abs=0.01)
+    assert realistic._extent(targets.debris()) == pytest.approx(1.6, abs=0.01)
+
+
+@pytest.mark.parametrize("name", targets.BUILT_IN)
+def test_every_built_in_target_is_accepted_at_2_4_and_7_m(name):
+    """No capacity is the user's problem: each target at a random attitude at 2, 4 and 7 m
+    (nearer when the range gate would cut it) gives a usable problem with the default config."""
+    target = getattr(targets, name)()
+    camera = jp.Camera.camcube2(noise_sigma=0.01, noise_range_ref=5.0, dropout=0.1, flying=0.5)
+    extent = realistic._extent(target)
+    rng = np.random.default_rng(hash(name) % 2**32)
+    for z in (2.0, 4.0, 7.0 - extent / 2):
+        R0 = realistic._random_rotation(rng)
+        R1 = realistic._axis_angle(rng.normal(size=3), math.radians(5.0)) @ R0
+        t = np.array([0.0, 0.0, z])
+        keys = jax.random.split(jax.random.key(int(z * 10)))
+        prev, curr = (jp.simulate(camera, target, R, t, key=k) for R, k in ((R0, keys[0]), (R1, keys[1])))
+        config = sized_config(prev, curr, jp.Config())
+        problem = jp.Problem.build(prev, curr, config)  # raises on any unusable pair
+        assert int(problem.status) == 0
+        assert config.max_points >= int(curr.num_valid) and config.grid_cells >= 32
+
+
+def test_a_mesh_4_m_across_is_accepted_and_estimated():
+    v, f = shapes.rock(axes=(4.0, 2.0, 1.2), seed=5)
+    target = targets.Mesh.create(v, f)
+    camera = jp.Camera.camcube2()
+    R0 = np.asarray(jp.rotation(0.3, -0.2, 0.5))
+    R1 = realistic._axis_angle(np.array([0.2, 1.0, 0.1]), math.radians(4.0)) @ R0
+    t = np.array([0.0, 0.0, 6.0])
+    prev, curr = jp.simulate(camera, target, R0, t), jp.simulate(camera, target, R1, t)
+    est = jp.estimate(prev, curr, key=jax.random.key(0))
+    angle = math.degrees(float(jp.rotation_angle(est.rotation, R1 @ R0.T)))
+    assert angle < 0.1, angle
+
+
+def test_jit_users_size_a_config_from_the_camera_and_extent():
+    config = jp.Config().sized_for(jp.Camera.camcube2(), extent=5.0)
+    assert config.grid_cells >= (1 + 2 * 0.2) * 5.0 / 0.026
+    assert config.max_points <= 204 * 204 and config.max_cells >= 2 * math.pi * 5.0 / 0.026
