@@ -201,6 +201,7 @@ def benchmark(
     pairs: Annotated[int, typer.Option(help="Pairs per target and noise level (7 targets × 4 levels).")] = 8,
     seed: Annotated[int, typer.Option(help="Seed of the poses, motions and sensor noise.")] = 0,
     out: Annotated[Path, typer.Option(help="Folder for realistic.{md,json,png}.")] = Path("results"),
+    preset: Annotated[str, typer.Option(help="jaxpose's config: default, or a Config preset's name.")] = "default",
 ):
     """The realistic benchmark: every built-in target, random views and motions of 1–15°,
     2–6.5 m, ToF range noise 0–2 cm, dropout, flying pixels; jaxpose's public `estimate`
@@ -216,12 +217,14 @@ def benchmark(
     peers, missing = available_peers()
     with _progress() as bar:
         task = bar.add_task("jaxpose", total=len(cases))
-        rows, first_calls = run_jaxpose(cases, seed=seed, progress=lambda: bar.advance(task))
+        config = None if preset == "default" else _preset(preset)()
+        rows, first_calls = run_jaxpose(cases, config, seed=seed, progress=lambda: bar.advance(task))
         for name, align in peers.items():
             task = bar.add_task(name, total=len(cases))
             rows += run_peer(name, align, cases, progress=lambda t=task: bar.advance(t))
     by_noise, by_target = summarise(rows, ("sigma_cm",)), summarise(rows, ("target", "sigma_cm"))
-    text = "## By noise level\n\n" + markdown(by_noise) + "\n\n## By target and noise level\n\n"
+    text = f"jaxpose config: {preset}; {len(cases)} pairs, seed {seed}.\n\n"
+    text += "## By noise level\n\n" + markdown(by_noise) + "\n\n## By target and noise level\n\n"
     text += markdown(by_target, ("target", "sigma_cm"))
     firsts = ", ".join(f"{s:.1f} s" for s in first_calls.values())
     text += f"\n\njaxpose first call per capacity bucket (compilation included, not in the times above): {firsts}."
@@ -231,7 +234,8 @@ def benchmark(
     out.mkdir(parents=True, exist_ok=True)
     (out / "realistic.md").write_text(text + "\n")
     plot(by_noise, out / "realistic.png")
-    payload = {"machine": machine(), "pairs": len(cases), "seed": seed, "by_noise": by_noise, "by_target": by_target}
+    payload = {"machine": machine(), "pairs": len(cases), "seed": seed, "preset": preset}
+    payload |= {"by_noise": by_noise, "by_target": by_target}
     payload |= {"first_calls_s": list(first_calls.values()), "missing": missing, "rows": rows}
     (out / "realistic.json").write_text(json.dumps(payload, indent=2, default=float))
     typer.echo(f"wrote {out / 'realistic.md'}, .json and .png")

@@ -12,14 +12,15 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._checks import is_concrete
+from ._programs import BoundedJit
 from .cloud import Cloud
 from .config import Config
 from .fine import fine_refine
 from .frame import PlaneFrame
 from .objective import hard_score, soft_score
 from .poses import motion_from_displacement
-from .problem import Problem, build_problem, check_range, grow_capacities, raise_for_codes, sized_config
-from .search import local_refine, restarted_search
+from .problem import Problem, _build, check_range, grow_capacities, raise_for_codes, sized_config
+from .search import box_scale, local_refine, restarted_search
 
 SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE, AT_BOX_EDGE = 0, 1, 2, 3, 4, 5
 STATUS_TEXT = {
@@ -102,6 +103,13 @@ def better_fine(a, b):
     return jax.tree.map(lambda x, y: jnp.where(pick_b, y, x), a, b)
 
 
+def within_reach(p: Float[Array, "6"], config: Config) -> Bool[Array, ""]:
+    """Whether p (frame n, radians and metres) lies where the search can reach: within
+    (1 + `recentre`) box half-widths of p = 0. The fine stage's result is dropped outside it, so
+    that a slide along a free direction never carries the estimate out of the box."""
+    return jnp.all(jnp.abs(p) <= (1 + config.recentre) * box_scale(config).astype(p.dtype))
+
+
 @eqx.filter_jit
 def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Estimate:
     """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
@@ -121,7 +129,7 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         # development run of experiments/bench_estimate.py). Its result is kept unless the method's reference
         # score drops by more than `fine_guard`; then the refine's result stands.
         fine_hard = hard_score(fine.params, problem)
-        fine_kept = fine_hard >= hard - config.fine_guard
+        fine_kept = (fine_hard >= hard - config.fine_guard) & within_reach(fine.params, config)
         # When kept, the fine stage's convergence is the one that counts (BFGS on the soft
         # objective may stop on a kink short of its tolerance and not matter).
         p = jnp.where(fine_kept, fine.params, p)
@@ -196,11 +204,14 @@ GROW_TRIES = 4
 missed (a rounding at the coarse level) is grown and the pair run again."""
 
 
-@eqx.filter_jit
-def _estimate_pair(prev: Cloud, curr: Cloud, config: Config, key: PRNGKeyArray):
-    """Build, search, refine and fine stage as one compiled program per capacity bucket."""
-    problem = build_problem(prev, curr, config)
+def _build_and_estimate(prev: Cloud, curr: Cloud, config: Config, key: PRNGKeyArray):
+    problem = _build(prev, curr, config)
     return estimate_problem(problem, config, key), problem.status, problem.frame.status
+
+
+_estimate_pair = BoundedJit(_build_and_estimate)
+"""Build, search, refine and fine stage as one compiled program per capacity bucket (the most
+recently used ones kept in memory, see `jaxpose._programs`)."""
 
 
 __all__ = ["STATUS_NAME", "STATUS_TEXT", "Estimate", "estimate", "estimate_problem"]

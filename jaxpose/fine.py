@@ -68,6 +68,13 @@ where the visible faces leave a direction free (a slide along an edge or a face)
 point-to-plane residuals are flat and the point-to-point ones, though coarser (they carry
 the sampling step), fix it; elsewhere the plane term dominates."""
 
+NOISE_FRACTION = 0.5
+"""A round also ends the stage as converged when it moves p by less than this fraction of the
+noise floor σ̂/√n (σ̂ the round's weighted RMS residual, n its inliers; in cm, compared with
+p in units of 1° and 1 cm): under range noise the matches keep changing by amounts the data
+cannot resolve, and "not converged" must mark an unreliable result, not a noisy pair.
+Noise-free, σ̂ ≈ 0 and `ROUND_TOL` decides."""
+
 ROBUST_FLOOR = 5e-4
 """Smallest Cauchy scale c, metres: noise-free residuals do not shrink it to nothing."""
 
@@ -95,7 +102,8 @@ class FineResult(eqx.Module):
     """Result of [`fine_refine`][].
 
     - `params`: p in frame n (radians, metres).
-    - `converged`: the last round moved p by at most `ROUND_TOL` (within `fine_rounds`).
+    - `converged`: the last round moved p by at most `ROUND_TOL`, or by less than
+      `NOISE_FRACTION` of the noise floor (within `fine_rounds`).
     - `steps`: LM steps taken, all rounds.
     - `inliers`: fraction of the selected current points within `fine_inlier` of the
       previous points, with the last round's matches (made where that round started, within
@@ -236,6 +244,14 @@ def _robust_weights(r: Float[Array, " S"], inlier: Bool[Array, " S"]) -> Float[A
     return jnp.where(inlier, 1 / (1 + (r / c) ** 2), 0.0)
 
 
+def _noise_floor_cm(r: Float[Array, " S"], w: Float[Array, " S"], inlier: Bool[Array, " S"]) -> Float[Array, ""]:
+    """σ̂/√n in centimetres: the weighted RMS residual σ̂ (metres) of n inliers over √n, the
+    scale below which the data cannot place the surfaces (see `NOISE_FRACTION`)."""
+    tiny = jnp.finfo(r.dtype).tiny
+    sigma = jnp.sqrt(jnp.sum(w * r**2) / jnp.maximum(jnp.sum(w), tiny))
+    return 100 * sigma / jnp.sqrt(jnp.maximum(jnp.sum(inlier), 1))
+
+
 def select_current(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, "3 S"], Bool[Array, " S"]]:
     """The current points (frame n, SoA) within `fine_curr_slab`·d of a cutting plane of frame
     ν(p), thinned evenly to `fine_points`, and their mask."""
@@ -269,7 +285,8 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
     Levenberg–Marquardt). A nearest-neighbour search costs S·K distances and the fixed-match
     solve only S residuals, so matching once per round rather than once per LM evaluation
     made the stage about 6× cheaper (370 → 65 ms on N5 variant 2). Stops when a round moves
-    p by less than `ROUND_TOL` or after `fine_rounds` rounds; `converged` says which.
+    p by less than `ROUND_TOL` or than `NOISE_FRACTION` of the noise floor, or after
+    `fine_rounds` rounds; `converged` says which.
     """
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)
@@ -280,9 +297,11 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
     solver = optx.LevenbergMarquardt(rtol=config.fine_tol, atol=config.fine_tol)
 
     def one_round(state):
-        y, _, rounds, steps, _ = state
+        y, _, _, rounds, steps, _ = state
         matched, weight = _correspond(y * scale, b, live, fine, inlier)
-        root_w = jnp.sqrt(_robust_weights(_residuals(y * scale, b, matched, weight), weight))
+        r0 = _residuals(y * scale, b, matched, weight)
+        w0 = _robust_weights(r0, weight)
+        root_w = jnp.sqrt(w0)
 
         def fn(y_, _):
             p_ = y_ * scale
@@ -292,17 +311,19 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
 
         sol = optx.least_squares(fn, solver, y, None, max_steps=config.fine_steps, throw=False)
         moved = jnp.max(jnp.abs(sol.value - y))
-        return sol.value, moved, rounds + 1, steps + sol.stats["num_steps"], (matched, weight)
+        tol = jnp.maximum(ROUND_TOL, _noise_floor_cm(r0, w0, weight) * NOISE_FRACTION)
+        return sol.value, moved, tol, rounds + 1, steps + sol.stats["num_steps"], (matched, weight)
 
     def more(state):
-        _, moved, rounds, _, _ = state
-        return (moved > ROUND_TOL) & (rounds < config.fine_rounds)
+        _, moved, tol, rounds, _, _ = state
+        return (moved > tol) & (rounds < config.fine_rounds)
 
     # Placeholder matches, of the right structure: the loop runs at least once and replaces them.
     shapes = jax.eval_shape(lambda: _correspond(start, b, live, fine, inlier))
     unmatched = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-    state = (start / scale, jnp.asarray(jnp.inf, dtype), jnp.asarray(0), jnp.asarray(0), unmatched)
-    y, moved, _, steps, (matched, weight) = jax.lax.while_loop(more, one_round, state)
+    inf = jnp.asarray(jnp.inf, dtype)
+    state = (start / scale, inf, jnp.asarray(ROUND_TOL, dtype), jnp.asarray(0), jnp.asarray(0), unmatched)
+    y, moved, tol, _, steps, (matched, weight) = jax.lax.while_loop(more, one_round, state)
     p = y * scale
     # The inlier fraction and RMS use the last round's matches (made where that round started,
     # within ROUND_TOL of p when converged) rather than a fresh nearest-neighbour search at p,
@@ -312,7 +333,7 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
     n_in, used = jnp.sum(weight), jnp.sum(live)
     return FineResult(
         params=p,
-        converged=moved <= ROUND_TOL,
+        converged=moved <= tol,
         steps=jnp.asarray(steps, jnp.int32),
         inliers=jnp.where(used > 0, n_in / jnp.maximum(used, 1), 0.0),
         rms=jnp.sqrt(jnp.sum(w * r**2) / jnp.maximum(jnp.sum(w), jnp.finfo(dtype).tiny)),

@@ -25,6 +25,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._checks import is_concrete
+from ._programs import BoundedJit
 from .cloud import Cloud
 from .config import Config
 from .fine import FineCloud, fine_cloud
@@ -160,13 +161,19 @@ class Problem(eqx.Module):
 
 
 def bucket(count: int, least: int = 64) -> int:
-    """The smallest capacity ≥ `count` among least · {1, 1.5} · 2^k. Few sizes, so that a stream
-    of similar clouds reuses one compiled program, and at most 1.5× the need."""
+    """The smallest capacity ≥ `count` among least · 2^k: at most twice the need, and few sizes,
+    so that a stream of similar clouds reuses one compiled program and a benchmark over many
+    targets and distances compiles a few dozen (a finer ladder, least · {1, 1.5} · 2^k, gave
+    80 programs for the 112 pairs of `make_cases(4)`; this one 25)."""
     size = least
     while size < count:
-        size = size * 3 // 2 if (size & (size - 1)) == 0 else size * 4 // 3
+        size *= 2
     return size
 
+
+POINTS_LEAST, GRID_LEAST, CELLS_LEAST = 2048, 64, 512
+"""The smallest sized capacities (points, grid cells per axis, pattern cells): below them a
+program costs little more, and small clouds then share one."""
 
 GRID_MARGIN = 4
 """Cells added to the largest previous pattern's grid when sizing `grid_cells`: the coarse
@@ -175,16 +182,17 @@ level's grid, ⌈C / coarse⌉ + 2 cells, then holds its own rounding of m and e
 
 def sized_config(prev: Cloud, curr: Cloud, config: Config) -> Config:
     """`config` with every capacity left at None sized from the clouds (Python boundary only):
-    the valid counts for `max_points` and `max_prev_points`, the largest previous pattern's
+    the larger valid count for `max_points` and `max_prev_points`, the largest previous pattern's
     grid for `grid_cells` and its selected points (an upper bound of its filled cells) for
     `max_cells`, each rounded up by [`bucket`][]. Capacities the config sets are kept."""
     n_prev, grid, selected = (int(x) for x in _pattern_sizes(prev, config))
     n_curr = int(np.sum(np.asarray(curr.valid)))
+    points = bucket(max(n_prev, n_curr), POINTS_LEAST)  # one size for both: a stream shares it
     fill = {
-        "max_points": bucket(n_curr, 512),
-        "max_prev_points": bucket(n_prev, 512),
-        "grid_cells": bucket(grid + GRID_MARGIN, 32),
-        "max_cells": bucket(selected, 64),
+        "max_points": points,
+        "max_prev_points": points,
+        "grid_cells": bucket(grid + GRID_MARGIN, GRID_LEAST),
+        "max_cells": bucket(selected, CELLS_LEAST),
     }
     return dataclasses.replace(config, **{k: v for k, v in fill.items() if getattr(config, k) is None})
 
@@ -304,7 +312,7 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
     return _patterns(frame, A, live, curr, config, status, coarse)
 
 
-build_problem = eqx.filter_jit(_build)
+build_problem = BoundedJit(_build)
 """The build as one compiled call per capacity bucket (jitted: op by op it cost ≈ 100 ms of
 dispatch at the Python boundary, and under `jax.vmap` it crashed XLA:CPU, JAX 0.10.2)."""
 

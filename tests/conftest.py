@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import jaxpose as jp  # noqa: E402
+from jaxpose._programs import clear_programs  # noqa: E402
 
 DEG = np.pi / 180
 PAPER_POSES = {
@@ -82,3 +83,4 @@ def release_compiled_programs():
     yield
     if _memory_mappings() > MAX_MAPPINGS:
         jax.clear_caches()
+        clear_programs()
