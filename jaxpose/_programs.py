@@ -24,6 +24,28 @@ PROGRAMS = 4
 _INSTANCES: weakref.WeakSet = weakref.WeakSet()
 
 
+CROWDED = 40_000
+"""Memory mappings of the process above which a new compile first releases every compiled
+program (`release_all`): other jitted code and eager operations also hold mappings, and a
+crowded process aborts in the compiler rather than raising."""
+
+
+def memory_mappings() -> int:
+    """The process's memory mappings (Linux; 0 where /proc is not there)."""
+    try:
+        with open("/proc/self/maps") as maps:
+            return sum(1 for _ in maps)
+    except OSError:
+        return 0
+
+
+def release_all() -> None:
+    """Drop JAX's in-memory caches and every `BoundedJit`'s programs: they recompile on their
+    next use (from the persistent compilation cache where one is set)."""
+    jax.clear_caches()
+    clear_programs()
+
+
 def clear_programs() -> None:
     """Drop the compiled programs of every `BoundedJit` (`jax.clear_caches` does not see them)."""
     for instance in list(_INSTANCES):
@@ -57,6 +79,8 @@ class BoundedJit:
         key = _signature(static, dynamic)
         program = self.programs.get(key)
         if program is None:
+            if memory_mappings() > CROWDED:
+                release_all()
             program = jax.jit(lambda dyn: self.fn(*eqx.combine(dyn, static))).lower(dynamic).compile()
             self.programs[key] = program
             while len(self.programs) > self.size:
@@ -69,4 +93,4 @@ class BoundedJit:
         self.programs.clear()
 
 
-__all__ = ["PROGRAMS", "BoundedJit", "clear_programs"]
+__all__ = ["CROWDED", "PROGRAMS", "BoundedJit", "clear_programs", "memory_mappings", "release_all"]

@@ -17,7 +17,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import jaxpose as jp  # noqa: E402
-from jaxpose._programs import clear_programs  # noqa: E402
+from jaxpose._programs import memory_mappings, release_all  # noqa: E402
 
 DEG = np.pi / 180
 PAPER_POSES = {
@@ -66,21 +66,12 @@ def pytest_collection_modifyitems(config, items):
 MAX_MAPPINGS = 30_000  # Linux allows 65,530 memory mappings per process (vm.max_map_count)
 
 
-def _memory_mappings() -> int:
-    try:
-        with open("/proc/self/maps") as maps:
-            return sum(1 for _ in maps)
-    except OSError:  # not Linux: no per-process mapping limit to watch
-        return 0
-
-
 @pytest.fixture(autouse=True)
 def release_compiled_programs():
     """Each compiled XLA:CPU program holds ≈ 3,000 memory mappings while it is cached, so a
     session that compiles a few dozen capacity buckets would exhaust Linux's per-process
-    limit and abort. Clearing JAX's in-memory caches when the count grows frees them; the
+    limit and abort. Releasing the compiled programs when the count grows frees them; the
     persistent compilation cache above makes the recompiles that follow cheap."""
     yield
-    if _memory_mappings() > MAX_MAPPINGS:
-        jax.clear_caches()
-        clear_programs()
+    if memory_mappings() > MAX_MAPPINGS:
+        release_all()
