@@ -247,9 +247,12 @@ def _robust_weights(r: Float[Array, " S"], inlier: Bool[Array, " S"]) -> Float[A
 def _noise_floor_cm(r: Float[Array, " S"], w: Float[Array, " S"], inlier: Bool[Array, " S"]) -> Float[Array, ""]:
     """σ̂/√n in centimetres: the weighted RMS residual σ̂ (metres) of n inliers over √n, the
     scale below which the data cannot place the surfaces (see `NOISE_FRACTION`)."""
-    tiny = jnp.finfo(r.dtype).tiny
-    sigma = jnp.sqrt(jnp.sum(w * r**2) / jnp.maximum(jnp.sum(w), tiny))
-    return 100 * sigma / jnp.sqrt(jnp.maximum(jnp.sum(inlier), 1))
+    return 100 * _weighted_rms(r, w) / jnp.sqrt(jnp.maximum(jnp.sum(inlier), 1))
+
+
+def _weighted_rms(r: Float[Array, " S"], w: Float[Array, " S"]) -> Float[Array, ""]:
+    """√(Σ w r² / Σ w), metres (0 when every weight is 0)."""
+    return jnp.sqrt(jnp.sum(w * r**2) / jnp.maximum(jnp.sum(w), jnp.finfo(r.dtype).tiny))
 
 
 def select_current(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, "3 S"], Bool[Array, " S"]]:
@@ -336,7 +339,7 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
         converged=moved <= tol,
         steps=jnp.asarray(steps, jnp.int32),
         inliers=jnp.where(used > 0, n_in / jnp.maximum(used, 1), 0.0),
-        rms=jnp.sqrt(jnp.sum(w * r**2) / jnp.maximum(jnp.sum(w), jnp.finfo(dtype).tiny)),
+        rms=_weighted_rms(r, w),
         used=used.astype(jnp.int32),
     )
 
