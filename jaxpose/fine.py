@@ -224,8 +224,15 @@ class Matches(NamedTuple):
 
 def _residuals(p, b, matched: Matches, weight):
     """Point-to-plane residuals of the current points b (frame n) at p against their matched
-    previous points and normals; 0 where `weight` is false. Metres."""
-    r = jnp.sum(matched.normals * _moved(p, b), axis=0) - matched.offsets
+    previous points and normals; 0 where `weight` is false. Metres.
+
+    The dot product is written out per component: as `jnp.sum(normals * q, axis=0)`,
+    `jax.jit(jax.jacfwd(...))` returned a wrong Jacobian from 6144 points up on XLA:CPU (jax
+    0.10.2; two of its columns equal, so a singular covariance and a wrong Levenberg–Marquardt
+    step), while the eager Jacobian was right. `tests/test_fine.py` compares the two."""
+    q = _moved(p, b)
+    n = matched.normals
+    r = n[0] * q[0] + n[1] * q[1] + n[2] * q[2] - matched.offsets
     return jnp.where(weight, r, 0.0)
 
 

@@ -187,7 +187,23 @@ def sized_config(prev: Cloud, curr: Cloud, config: Config) -> Config:
     `max_cells`, each rounded up by [`bucket`][]. Capacities the config sets are kept."""
     n_prev, grid, selected = (int(x) for x in _pattern_sizes(prev, config))
     n_curr = int(np.sum(np.asarray(curr.valid)))
-    points = bucket(max(n_prev, n_curr), POINTS_LEAST)  # one size for both: a stream shares it
+    return _filled(config, max(n_prev, n_curr), grid, selected)
+
+
+def sized_sequence_config(clouds: Cloud, config: Config) -> Config:
+    """`config` sized for a sequence of clouds (leading axis T) in which any frame may be the
+    previous cloud of a pair (a tracker's keyframe) and any the current one: the largest valid
+    count, pattern grid and pattern selection over the frames, rounded as [`sized_config`][].
+    Python boundary only."""
+    counts, grids, selected = eqx.filter_vmap(lambda c: _pattern_sizes(c, config))(clouds)
+    return _filled(config, int(jnp.max(counts)), int(jnp.max(grids)), int(jnp.max(selected)))
+
+
+def _filled(config: Config, points: int, grid: int, selected: int) -> Config:
+    """`config` with each capacity left at None set from the sizes of the data: `points` valid
+    points (both clouds), a largest pattern grid of `grid` cells per axis and `selected`
+    points in the fullest pattern, each rounded up by [`bucket`][]."""
+    points = bucket(points, POINTS_LEAST)  # one size for both clouds: a stream shares it
     fill = {
         "max_points": points,
         "max_prev_points": points,

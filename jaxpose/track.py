@@ -38,6 +38,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jaxlie
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from .cloud import Cloud
@@ -46,8 +47,59 @@ from .estimate import SUCCESS, estimate_problem
 from .fine import fine_covariance
 from .frame import plane_frame
 from .poses import motion_from_displacement
-from .problem import Problem
+from ._checks import is_concrete
+from ._programs import BoundedJit
+from .problem import Problem, sized_sequence_config
 from .search import tree_select
+
+FILTER_UPDATED, FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE = 0, 1, 2, 3
+FILTER_STATUS_NAME = {
+    FILTER_UPDATED: "updated",
+    FILTER_NO_ESTIMATE: "no estimate",
+    FILTER_BAD_MEASUREMENT: "bad measurement",
+    FILTER_BAD_UPDATE: "bad update",
+}
+"""The filter's own per-frame status (`Track.filter_status`): the frame's measurement was fused
+(frame 0, the filter's start, counts as updated); its estimate was no success; the measurement
+or its covariance was unusable (non-finite, or the covariance not symmetric positive
+definite); or the update itself gave a non-finite state or an innovation covariance that is
+not positive definite. In every case but the first the frame is a prediction only, so the
+filter's state is never non-finite."""
+
+SYMMETRY_TOL = 1e-6
+"""Largest |Σ − Σᵀ| relative to max |Σ| for a measurement covariance to count as symmetric."""
+
+
+def _tree_finite(tree) -> Bool[Array, ""]:
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
+
+
+def _positive_definite(S: Float[Array, "n n"]) -> Bool[Array, ""]:
+    """Whether a finite symmetric matrix is positive definite: its Cholesky factor is finite
+    (JAX returns NaN for one that is not)."""
+    safe = jnp.where(jnp.all(jnp.isfinite(S)), S, jnp.eye(S.shape[0], dtype=S.dtype))
+    return jnp.all(jnp.isfinite(S)) & jnp.all(jnp.isfinite(jnp.linalg.cholesky(safe)))
+
+
+def measurement_usable(rotation, translation, cov: Float[Array, "6 6"]) -> Bool[Array, ""]:
+    """Whether a measured motion can be fused: rotation (3, 3) and translation (3,, m) finite,
+    and its covariance `cov` (rad, then m) finite, symmetric (`SYMMETRY_TOL`) and positive
+    definite. Jittable; the filters skip a frame that fails it and flag it
+    `FILTER_BAD_MEASUREMENT`."""
+    finite = _tree_finite((rotation, translation, cov))
+    scale = jnp.max(jnp.abs(jnp.where(jnp.isfinite(cov), cov, 0.0)))
+    symmetric = jnp.max(jnp.abs(cov - cov.T)) <= SYMMETRY_TOL * scale
+    return finite & symmetric & _positive_definite((cov + cov.T) / 2)
+
+
+def _guarded_update(filt, predicted, updated, estimate_ok, usable, innovation_ok):
+    """The updated filter where every check passed, else the prediction; and the frame's
+    filter status (see `FILTER_STATUS_NAME`)."""
+    good_update = innovation_ok & _tree_finite(updated)
+    status = jnp.select(
+        [~estimate_ok, ~usable, ~good_update], [FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE], FILTER_UPDATED
+    )
+    return tree_select(status == FILTER_UPDATED, updated, predicted), status.astype(jnp.int32)
 
 
 def _exp(v):
@@ -114,7 +166,7 @@ class TrackFilter(eqx.Module):
     def update(self, rotation, point, noise: Float[Array, "6 6"]) -> TrackFilter:
         """Fuse a measured A (`rotation`) and tracked-point position (`point`, m) with
         covariance `noise` (rotation vector in rad, then metres)."""
-        H = jnp.zeros((6, 15)).at[:3, :3].set(jnp.eye(3)).at[3:, 9:12].set(jnp.eye(3))
+        H = _POSE_ROWS
         residual = jnp.concatenate([_log(rotation @ self.attitude.T), point - self.position])
         S = H @ self.cov @ H.T + noise
         K = jnp.linalg.solve(S, H @ self.cov).T
@@ -128,6 +180,17 @@ class TrackFilter(eqx.Module):
             self.velocity + dx[12:],
             joseph @ self.cov @ joseph.T + K @ noise @ K.T,
         )
+
+    def innovation_ok(self, noise: Float[Array, "6 6"]) -> Bool[Array, ""]:
+        """Whether the innovation covariance of an [`update`][] with `noise` is positive definite."""
+        S = _POSE_ROWS @ self.cov @ _POSE_ROWS.T + noise
+        return _positive_definite((S + S.T) / 2)
+
+
+_POSE_ROWS = np.zeros((6, 15), np.float32)
+_POSE_ROWS[:3, :3] = _POSE_ROWS[3:, 9:12] = np.eye(3)
+"""Measurement matrix of a pose (attitude error, then tracked-point position) on the
+(15,) error state of `TrackFilter`."""
 
 
 class Chain(eqx.Module):
@@ -179,8 +242,9 @@ def measurement_covariance(problem: Problem, config: Config, p: Float[Array, "6"
 class Track(eqx.Module):
     """Per frame k (leading axis T): the chained measurement (`rotations` R_0k, `points`),
     the `status` of its estimate, and the filtered `attitude`, `rate` (rad/s, frame c),
-    `spin_accel` (rad/s², frame c), `position`, `velocity` and the filter's `rate_std`
-    (rad/s, per axis)."""
+    `spin_accel` (rad/s², frame c), `position`, `velocity`, the filter's `rate_std`
+    (rad/s, per axis) and its own per-frame `filter_status` (`FILTER_STATUS_NAME`: whether the
+    frame's measurement was fused, or why not). Every filtered output is finite."""
 
     rotations: Float[Array, "T 3 3"]
     points: Float[Array, "T 3"]
@@ -191,6 +255,7 @@ class Track(eqx.Module):
     position: Float[Array, "T 3"]
     velocity: Float[Array, "T 3"]
     rate_std: Float[Array, "T 3"]
+    filter_status: Int[Array, " T"]
 
 
 class KeyframeFilter(eqx.Module):
@@ -232,11 +297,7 @@ class KeyframeFilter(eqx.Module):
         M = self.now.attitude @ self.key_attitude.T  # predicted R_rel
         Mr = M @ self.key_position
         residual = jnp.concatenate([_log(R_rel @ M.T), t_rel - (self.now.position - Mr)])
-        H = jnp.zeros((6, 21))
-        H = H.at[:3, :3].set(jnp.eye(3)).at[:3, 15:18].set(-M)
-        H = H.at[3:, :3].set(_skew(Mr)).at[3:, 15:18].set(-_skew(Mr) @ M)
-        H = H.at[3:, 9:12].set(jnp.eye(3)).at[3:, 18:21].set(-M)
-        # Residual t: t_rel − (r − M r_key); δ(r − M r_key) = δr − M δr_key + [M r_key]× δθ.
+        H = self._jacobian()
         S = H @ self.cov @ H.T + noise
         K = jnp.linalg.solve(S, H @ self.cov).T
         dx = K @ residual
@@ -252,6 +313,23 @@ class KeyframeFilter(eqx.Module):
         )
         key_attitude = _exp(dx[15:18]) @ self.key_attitude
         return KeyframeFilter(now, key_attitude, self.key_position + dx[18:], cov)
+
+    def _jacobian(self) -> Float[Array, "6 21"]:
+        """Jacobian of the predicted keyframe → now motion (left rotation vector, then
+        translation) with respect to the (21,) error state."""
+        M = self.now.attitude @ self.key_attitude.T  # predicted R_rel
+        Mr = M @ self.key_position
+        H = jnp.zeros((6, 21), self.cov.dtype)
+        H = H.at[:3, :3].set(jnp.eye(3)).at[:3, 15:18].set(-M)
+        H = H.at[3:, :3].set(_skew(Mr)).at[3:, 15:18].set(-_skew(Mr) @ M)
+        # Residual t: t_rel − (r − M r_key); δ(r − M r_key) = δr − M δr_key + [M r_key]× δθ.
+        return H.at[3:, 9:12].set(jnp.eye(3)).at[3:, 18:21].set(-M)
+
+    def innovation_ok(self, noise: Float[Array, "6 6"]) -> Bool[Array, ""]:
+        """Whether the innovation covariance of an [`update`][] with `noise` is positive definite."""
+        H = self._jacobian()
+        S = H @ self.cov @ H.T + noise
+        return _positive_definite((S + S.T) / 2)
 
     def clone(self, shared: Float[Array, "6 6"] | None = None) -> KeyframeFilter:
         """Make the current state the keyframe (after frame k becomes the new keyframe).
@@ -307,8 +385,10 @@ def chain_estimates(clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_e
             cov = jnp.eye(6, dtype=origin.dtype) * 1e-4
         else:
             cov = measurement_covariance(problem, config, est.params)
-        cov = jnp.where(ok, cov, jnp.eye(6, dtype=origin.dtype))  # finite even when unused
-        switch = (k % keyframe_every == 0) & ok
+        usable = measurement_usable(est.rotation, est.translation, cov)
+        cov = jnp.where(ok & usable, cov, jnp.eye(6, dtype=origin.dtype))  # finite even when unused
+        # A keyframe switch needs a usable measurement: the filter clones its state there.
+        switch = (k % keyframe_every == 0) & ok & usable
         key_cloud = tree_select(switch, cloud, key_cloud)
         key_R, key_t = jnp.where(switch, R, key_R), jnp.where(switch, t, key_t)
         out = (R, t, R @ origin + t, est.status, est.rotation, est.translation, cov, switch)
@@ -353,14 +433,17 @@ def filter_chain(
 
     def step(filt, inputs):
         R, point, status = inputs
-        filt = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
-        updated = filt.update(R, point, noise)
-        filt = tree_select(status == SUCCESS, updated, filt)
-        return filt, _row(filt)
+        predicted = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
+        usable = measurement_usable(R, point, noise)
+        updated = predicted.update(R, point, noise)
+        ok = status == SUCCESS
+        filt, code = _guarded_update(filt, predicted, updated, ok, usable, predicted.innovation_ok(noise))
+        return filt, (*_row(filt), code)
 
     filt = TrackFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
     _, outs = jax.lax.scan(step, filt, (chain.rotations[1:], chain.points[1:], chain.status[1:]))
-    filtered = (jnp.concatenate([h[None], o]) for h, o in zip(_row(filt), outs, strict=True))
+    head = (*_row(filt), jnp.asarray(FILTER_UPDATED, jnp.int32))
+    filtered = (jnp.concatenate([h[None], o]) for h, o in zip(head, outs, strict=True))
     return Track(chain.rotations, chain.points, chain.status, *filtered)
 
 
@@ -391,17 +474,28 @@ def filter_keyframes(
 
     def step(filt, inputs):
         R_rel, t_rel, cov, status, switched = inputs
-        filt = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
-        filt = tree_select(status == SUCCESS, filt.update(R_rel, t_rel, (1 - shared_fraction) * cov), filt)
+        predicted = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
+        usable = measurement_usable(R_rel, t_rel, cov)
+        cov = jnp.where(usable, cov, jnp.eye(6, dtype=cov.dtype))  # the update is computed, then discarded
+        noise = (1 - shared_fraction) * cov
+        updated = predicted.update(R_rel, t_rel, noise)
+        ok = status == SUCCESS
+        filt, code = _guarded_update(filt, predicted, updated, ok, usable, predicted.innovation_ok(noise))
+        # The chain switched keyframes: later measurements are against the new one, so the
+        # clone follows it whether or not this frame's update was kept.
         filt = tree_select(switched, filt.clone(shared_fraction * cov), filt)
-        return filt, _row(filt.now)
+        return filt, (*_row(filt.now), code)
 
-    # Frame 0 is the first keyframe: its share comes with the first registration's covariance.
+    # Frame 0 is the first keyframe: its share comes with the first registration's covariance
+    # (none where that one is unusable).
     filt = KeyframeFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
-    filt = filt.clone(shared_fraction * chain.relative_cov[1])
+    first = chain.relative_cov[1]
+    first_ok = measurement_usable(chain.relative_rotations[1], chain.relative_translations[1], first)
+    filt = filt.clone(shared_fraction * jnp.where(first_ok, first, 0.0))
     inputs = (chain.relative_rotations, chain.relative_translations, chain.relative_cov, chain.status, chain.switched)
     _, outs = jax.lax.scan(step, filt, jax.tree.map(lambda x: x[1:], inputs))
-    filtered = (jnp.concatenate([h[None], o]) for h, o in zip(_row(filt.now), outs, strict=True))
+    head = (*_row(filt.now), jnp.asarray(FILTER_UPDATED, jnp.int32))
+    filtered = (jnp.concatenate([h[None], o]) for h, o in zip(head, outs, strict=True))
     return Track(chain.rotations, chain.points, chain.status, *filtered)
 
 
@@ -413,19 +507,63 @@ def _row(filt: TrackFilter):
 def track(
     clouds: Cloud,
     dt: float,
-    config: Config,
-    key: PRNGKeyArray,
+    config: Config | None = None,
+    key: PRNGKeyArray | None = None,
     keyframe_every: int = 25,
     **filter_options,
 ) -> Track:
-    """Track a sequence of clouds (leading axis T, frames `dt` seconds apart):
-    [`chain_estimates`][] then [`filter_keyframes`][] (`filter_options` go to the latter).
-    Pure and jittable."""
+    """Track a sequence of clouds: [`chain_estimates`][] then [`filter_keyframes`][].
+
+    **Arguments:**
+
+    - `clouds`: one [`jaxpose.Cloud`][] with a leading time axis T (camera frame c, metres).
+    - `dt`: seconds between frames.
+    - `config`: the estimate's [`jaxpose.Config`][] (default `Config()`). At the Python boundary
+      capacities left at None are sized from the whole sequence (any frame may become the
+      keyframe); under jit from the clouds' row counts.
+    - `key`: PRNG key of the searches (required).
+    - `keyframe_every`: frames between keyframe switches.
+    - `filter_options`: go to [`filter_keyframes`][].
+
+    **Returns:**
+
+    A [`Track`][]; every filtered output is finite, and `filter_status` says which frames were
+    fused. Pure and jittable; at the Python boundary the whole run is one compiled program per
+    capacity bucket.
+    """
+    if key is None:
+        raise ValueError("track needs a PRNG key: track(clouds, dt, key=jax.random.key(0)).")
+    config = Config() if config is None else config
+    if not is_concrete(clouds):
+        return _track(clouds, jnp.asarray(dt), config, key, keyframe_every, filter_options)
+    _check_sequence(clouds, dt)
+    config = sized_sequence_config(clouds, config)
+    dtype = clouds.points.dtype
+    return _track_program(clouds, jnp.asarray(dt, dtype), config, key, keyframe_every, filter_options)
+
+
+def _check_sequence(clouds: Cloud, dt) -> None:
+    """Clear errors at the Python boundary for a sequence that cannot be tracked."""
+    points = np.asarray(clouds.points)
+    if points.ndim != 3 or points.shape[-1] != 3 or points.shape[0] < 2:
+        raise ValueError(f"clouds: expected points of shape (T ≥ 2, N, 3), got {points.shape}.")
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive number of seconds, got {dt!r}.")
+    for k in range(points.shape[0]):
+        jax.tree.map(lambda x: x[k], clouds).check(f"frame {k}")
+
+
+def _track(clouds, dt, config, key, keyframe_every, filter_options) -> Track:
     return filter_keyframes(chain_estimates(clouds, config, key, keyframe_every), dt, **filter_options)
+
+
+_track_program = BoundedJit(_track)
+"""Registration and filter over a whole sequence as one compiled program per capacity bucket."""
 
 
 __all__ = [
     "COVARIANCE_SCALE",
+    "FILTER_STATUS_NAME",
     "Chain",
     "KeyframeFilter",
     "Track",
@@ -434,5 +572,6 @@ __all__ = [
     "filter_chain",
     "filter_keyframes",
     "measurement_covariance",
+    "measurement_usable",
     "track",
 ]

@@ -10,7 +10,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose.fine import fine_cloud, fine_refine, select_current, smallest_eigen, spread_subset
+from jaxpose.fine import (
+    Matches,
+    _residuals,
+    fine_cloud,
+    fine_covariance,
+    fine_refine,
+    select_current,
+    smallest_eigen,
+    spread_subset,
+)
 
 CONFIG = jp.Config.fast(max_points=5120)
 
@@ -162,3 +171,34 @@ def test_the_fine_result_is_kept_only_within_the_search_reach():
     assert bool(within_reach(jnp.array([1.04, -1.04, 0.0, 0.29, -0.29, 0.0]), config))
     assert not bool(within_reach(jnp.array([0.0, 0.0, 0.0, 0.0, 0.0, 5.9]), config))
     assert not bool(within_reach(jnp.array([1.06, 0.0, 0.0, 0.0, 0.0, 0.0]), config))
+
+
+@pytest.mark.parametrize("size", [4096, 6144, 8192])
+def test_the_jitted_jacobian_of_the_residuals_matches_the_eager_one(size):
+    # XLA:CPU (jax 0.10.2) miscompiled jit(jacfwd) of the residuals written as
+    # jnp.sum(normals * q, axis=0) from 6144 points up: two equal Jacobian columns, so a
+    # singular covariance (NaN in the tracker) and wrong Levenberg–Marquardt steps.
+    rng = np.random.default_rng(size)
+    b = jnp.asarray(rng.normal(size=(3, size)), jnp.float32)
+    n = rng.normal(size=(3, size))
+    n /= np.linalg.norm(n, axis=0)
+    matched = Matches(jnp.asarray(n, jnp.float32), jnp.asarray(rng.normal(size=size), jnp.float32), jnp.ones(size, bool), b)
+    weight = jnp.asarray(rng.uniform(size=size) > 0.3)
+    p = jnp.asarray([-0.066, -0.099, 0.159, -0.057, -0.060, -0.0137], jnp.float32)
+    jitted = np.asarray(jax.jit(jax.jacfwd(_residuals))(p, b, matched, weight))
+    eager = np.asarray(jax.jacfwd(_residuals)(p, b, matched, weight))
+    np.testing.assert_allclose(jitted, eager, atol=1e-5)
+
+
+def test_the_covariance_of_a_whole_surface_fit_of_6144_points_is_positive_definite():
+    noisy = jp.Camera.camcube2(noise_sigma=0.01)
+    keys = jax.random.split(jax.random.key(5))
+    R1, R2 = paper_rotation("previous"), paper_rotation("variant2")
+    prev = jp.simulate(noisy, jp.targets.n5(), R1, jnp.asarray(T_PAPER), key=keys[0])
+    curr = jp.simulate(noisy, jp.targets.n5(), R2, jnp.asarray(T_PAPER), key=keys[1])
+    config = jp.Config(fine_points=6144)
+    problem = jp.Problem.build(prev, curr, config)
+    truth = jp.true_displacement(problem.frame, R1, T_PAPER, R2, T_PAPER)
+    cov = np.asarray(jax.jit(fine_covariance, static_argnums=1)(problem, config, truth), float)
+    assert np.all(np.isfinite(cov))
+    assert np.linalg.eigvalsh(cov).min() > 0
