@@ -171,7 +171,7 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     idx, live = spread_subset(near, K)
     P = A[:, idx]
     grid = voxel_grid(P, live, NEIGHBOUR_VOXEL * voxel_spacing(P, live))
-    nb, d2 = k_nearest(grid, P, P, min(config.fine_neighbours, K), NEIGHBOUR_SLOTS)
+    nb, d2 = k_nearest(grid, P, min(config.fine_neighbours, K), NEIGHBOUR_SLOTS)
     found = jnp.isfinite(d2).astype(P.dtype)  # neighbours within the search's reach
     hood = P[:, nb]  # (3, K, k)
     centroid = jnp.sum(hood * found, axis=2, keepdims=True) / jnp.maximum(jnp.sum(found, axis=1), 1)[:, None]
@@ -209,7 +209,7 @@ def _match(q: Float[Array, "3 S"], fine: FineCloud):
     """Nearest selected previous point of each q (index) and its distance, metres (inf beyond
     the neighbour search's reach). A match whose point is not planar is no inlier."""
     q = jax.lax.stop_gradient(q)  # the correspondence is held constant under differentiation
-    return nearest(fine.grid, fine.points, q, NEIGHBOUR_SLOTS)
+    return nearest(fine.grid, q, NEIGHBOUR_SLOTS)
 
 
 class Matches(NamedTuple):

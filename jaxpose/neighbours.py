@@ -13,6 +13,8 @@ Points are structure of arrays, `(3, N)`, metres, any frame.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -27,10 +29,12 @@ EMPTY = jnp.iinfo(jnp.int32).max
 
 class VoxelGrid(eqx.Module):
     """Points binned in voxels: `keys` sorted, `order` the point index of each sorted key,
-    `lo` the grid's corner (metres) and `size` the voxel edge h (metres)."""
+    `points` `(3, N)` the points in that sorted order (so that a column of voxels is one
+    contiguous run), `lo` the grid's corner (metres) and `size` the voxel edge h (metres)."""
 
     keys: Int[Array, " N"]
     order: Int[Array, " N"]
+    points: Float[Array, "3 N"]
     lo: Float[Array, "3"]
     size: Float[Array, ""]
 
@@ -52,13 +56,24 @@ def voxel_grid(points: Float[Array, "3 N"], valid: Bool[Array, " N"], size) -> V
     lo = jnp.where(jnp.isfinite(lo), lo, 0.0)
     keys = jnp.where(valid, _key(_coords(points, lo, size)), EMPTY)
     order = jnp.argsort(keys)
-    return VoxelGrid(keys[order], order.astype(jnp.int32), lo, size)
+    return VoxelGrid(keys[order], order.astype(jnp.int32), points[:, order], lo, size)
 
 
-def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int):
-    """Indices of the points in the 27 voxels around each query and which of them are real,
-    `(S, 9·slots)` each: the 3 × 3 columns of voxels (x ± 1, y ± 1), each column's three
-    voxels along z consecutive in key order, read as one run of at most `slots` points."""
+class Candidates(NamedTuple):
+    """The points read for each query, `(S, 9·slots)` each: their position in the grid's
+    sorted order, whether they are real (in one of the query's 27 voxels), and their squared
+    distance to the query (metres², inf where not real)."""
+
+    sorted_index: Int[Array, "S C"]
+    real: Bool[Array, "S C"]
+    distance2: Float[Array, "S C"]
+
+
+def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Candidates:
+    """The points in the 27 voxels around each query: the 3 × 3 columns of voxels (x ± 1,
+    y ± 1), each column's three voxels along z consecutive in key order, read as one
+    contiguous window of `slots` sorted points (a slice, not a gather per point: about 3×
+    faster on the 2-core CPU than gathering each candidate through `order`)."""
     c = _coords(queries, grid.lo, grid.size)
     top = 2**BITS - 1
     columns = jnp.asarray([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], jnp.int32).T  # (2, 9)
@@ -69,44 +84,43 @@ def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int):
     first = jnp.where(inside, column | jnp.clip(z - 1, 0, top), EMPTY)
     last = jnp.where(inside, column | jnp.clip(z + 1, 0, top), -1)
     n = grid.keys.shape[0]
+    slots = min(slots, n)
     # The barriers keep XLA:CPU from fusing the key arithmetic into the search loop and the
-    # search into each of the `slots` reads, which made the lookup several times slower.
+    # search into the window reads, which made the lookup several times slower.
     first, last = jax.lax.optimization_barrier((first, last))
-    start = jnp.searchsorted(grid.keys, first.ravel(), method="scan_unrolled").reshape(first.shape)
-    start = jax.lax.optimization_barrier(start)
-    j = start[..., None] + jnp.arange(slots)  # (S, 9, slots)
-    jc = jnp.minimum(j, n - 1)
-    key = grid.keys[jc]
-    ok = (j < n) & (key >= first[..., None]) & (key <= last[..., None])
+    start = jnp.searchsorted(grid.keys, first.ravel(), method="scan_unrolled")
+    # A window that would run past the end is moved back to end there: it still holds every
+    # point from `start` on, and the key test below drops the ones before it.
+    start = jax.lax.optimization_barrier(jnp.minimum(start, n - slots).astype(jnp.int32))
+    points = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.points, (jnp.int32(0), i), (3, slots)))(
+        start
+    )  # (S·9, 3, slots)
+    keys = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.keys, (i,), (slots,)))(start)  # (S·9, slots)
     S = queries.shape[1]
-    return grid.order[jc].reshape(S, -1), ok.reshape(S, -1)
+    points = points.reshape(S, 9, 3, slots)
+    real = (keys.reshape(S, 9, slots) >= first[..., None]) & (keys.reshape(S, 9, slots) <= last[..., None])
+    d2 = sum((points[:, :, k, :] - queries[k][:, None, None]) ** 2 for k in range(3))
+    sorted_index = start.reshape(S, 9)[..., None] + jnp.arange(slots)
+    return Candidates(sorted_index.reshape(S, -1), real.reshape(S, -1), jnp.where(real, d2, jnp.inf).reshape(S, -1))
 
 
-def _distances2(points, queries, idx, ok):
-    d2 = sum((points[k][idx] - queries[k][:, None]) ** 2 for k in range(3))
-    return jnp.where(ok, d2, jnp.inf)
-
-
-def nearest(
-    grid: VoxelGrid, points: Float[Array, "3 N"], queries: Float[Array, "3 S"], slots: int
-) -> tuple[Int[Array, " S"], Float[Array, " S"]]:
-    """The nearest grid point of each query (index into `points`) and its distance (metres;
-    inf where the 27 voxels hold none)."""
-    idx, ok = candidates(grid, queries, slots)
-    d2 = _distances2(points, queries, idx, ok)
-    best = jnp.argmin(d2, axis=1)
-    return jnp.take_along_axis(idx, best[:, None], 1)[:, 0], jnp.sqrt(jnp.take_along_axis(d2, best[:, None], 1)[:, 0])
+def nearest(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> tuple[Int[Array, " S"], Float[Array, " S"]]:
+    """The nearest grid point of each query (index into the points the grid was built from)
+    and its distance (metres; inf where the 27 voxels hold none)."""
+    cand = candidates(grid, queries, slots)
+    best = jnp.argmin(cand.distance2, axis=1)
+    pick = jnp.take_along_axis(cand.sorted_index, best[:, None], 1)[:, 0]
+    return grid.order[pick], jnp.sqrt(jnp.take_along_axis(cand.distance2, best[:, None], 1)[:, 0])
 
 
 def k_nearest(
-    grid: VoxelGrid, points: Float[Array, "3 N"], queries: Float[Array, "3 S"], k: int, slots: int
+    grid: VoxelGrid, queries: Float[Array, "3 S"], k: int, slots: int
 ) -> tuple[Int[Array, "S k"], Float[Array, "S k"]]:
-    """The k nearest grid points of each query among its 27 voxels (indices, and squared
-    distances, inf for missing ones), nearest first."""
-    idx, ok = candidates(grid, queries, slots)
-    d2 = _distances2(points, queries, idx, ok)
-    neg, pos = jax.lax.top_k(-d2, k)
-    return jnp.take_along_axis(idx, pos, 1), -neg
+    """The k nearest grid points of each query among its 27 voxels (indices into the points
+    the grid was built from, and squared distances, inf for missing ones), nearest first."""
+    cand = candidates(grid, queries, slots)
+    neg, pos = jax.lax.top_k(-cand.distance2, k)
+    return grid.order[jnp.take_along_axis(cand.sorted_index, pos, 1)], -neg
 
 
 def spread_subset(mask: Bool[Array, " N"], size: int) -> tuple[Int[Array, " size"], Bool[Array, " size"]]:
@@ -136,4 +150,13 @@ def voxel_spacing(points: Float[Array, "3 N"], valid: Bool[Array, " N"], samples
     return jnp.where(jnp.isfinite(step), step, 1.0)
 
 
-__all__ = ["VoxelGrid", "candidates", "k_nearest", "nearest", "spread_subset", "voxel_grid", "voxel_spacing"]
+__all__ = [
+    "Candidates",
+    "VoxelGrid",
+    "candidates",
+    "k_nearest",
+    "nearest",
+    "spread_subset",
+    "voxel_grid",
+    "voxel_spacing",
+]

@@ -68,6 +68,40 @@ class Tumble(eqx.Module):
         )
 
     @classmethod
+    def random(
+        cls,
+        key: PRNGKeyArray,
+        distance: float = 5.5,
+        rates_deg_s: tuple[float, float] = (0.5, 10.0),
+        orbital_camera: bool = False,
+        mass: float = 100.0,
+    ) -> Tumble:
+        """A random tumble: a uniformly random attitude and rotation axis, a rate drawn
+        uniformly from `rates_deg_s` (°/s), principal moments of inertia with random ratios
+        (the two smaller ones 1–2.5 × a unit, the largest between the larger of them and
+        their sum, so every ratio is a rigid body's; times `mass` kg·m²), the target at
+        `distance` m on the optical axis, ±0.2 m across it, at rest relative to the chief.
+
+        `orbital_camera` False: torque-free motion seen by a camera holding an inertial
+        attitude (no orbit). True: gravity-gradient torque of a 500 km orbit, the camera fixed
+        in the orbital frame."""
+        keys = jax.random.split(key, 6)
+        small = jax.random.uniform(keys[0], (2,), minval=1.0, maxval=2.5)
+        largest = jax.random.uniform(keys[1], minval=jnp.max(small), maxval=jnp.sum(small))
+        moments = jnp.concatenate([small, largest[None]])
+        axis = jax.random.normal(keys[2], (3,))
+        rate = jnp.radians(jax.random.uniform(keys[3], minval=rates_deg_s[0], maxval=rates_deg_s[1]))
+        offset = jax.random.uniform(keys[5], (2,), minval=-0.2, maxval=0.2)
+        return cls(
+            position=jnp.concatenate([offset, jnp.array([distance])]),
+            velocity=jnp.zeros(3),
+            attitude=jaxlie.SO3.sample_uniform(keys[4]).as_matrix(),
+            rate=rate * axis / jnp.linalg.norm(axis),
+            inertia=jnp.diag(moments * mass / 2.5),
+            orbit_rate=orbit_rate(500e3) if orbital_camera else 0.0,
+        )
+
+    @classmethod
     def chibis_m(cls, rate_deg_s: float | None = None) -> Tumble:
         """The Chibis-M separation scenario (RELATED.md A.7), read in the camera frame c as
         the report presumably meant (3 m along the optical axis): O_t at (0, 0, 3) m moving

@@ -41,14 +41,14 @@ import jaxlie
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from ._checks import is_concrete
+from ._programs import BoundedJit
 from .cloud import Cloud
 from .config import Config
 from .estimate import SUCCESS, estimate_problem
 from .fine import fine_covariance
 from .frame import plane_frame
 from .poses import motion_from_displacement
-from ._checks import is_concrete
-from ._programs import BoundedJit
 from .problem import Problem, sized_sequence_config
 from .search import tree_select
 
@@ -97,7 +97,9 @@ def _guarded_update(filt, predicted, updated, estimate_ok, usable, innovation_ok
     filter status (see `FILTER_STATUS_NAME`)."""
     good_update = innovation_ok & _tree_finite(updated)
     status = jnp.select(
-        [~estimate_ok, ~usable, ~good_update], [FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE], FILTER_UPDATED
+        [~estimate_ok, ~usable, ~good_update],
+        [FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE],
+        FILTER_UPDATED,
     )
     return tree_select(status == FILTER_UPDATED, updated, predicted), status.astype(jnp.int32)
 
@@ -550,7 +552,7 @@ def _check_sequence(clouds: Cloud, dt) -> None:
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive number of seconds, got {dt!r}.")
     for k in range(points.shape[0]):
-        jax.tree.map(lambda x: x[k], clouds).check(f"frame {k}")
+        jax.tree.map(lambda x, k=k: x[k], clouds).check(f"frame {k}")
 
 
 def _track(clouds, dt, config, key, keyframe_every, filter_options) -> Track:

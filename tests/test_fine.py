@@ -182,7 +182,9 @@ def test_the_jitted_jacobian_of_the_residuals_matches_the_eager_one(size):
     b = jnp.asarray(rng.normal(size=(3, size)), jnp.float32)
     n = rng.normal(size=(3, size))
     n /= np.linalg.norm(n, axis=0)
-    matched = Matches(jnp.asarray(n, jnp.float32), jnp.asarray(rng.normal(size=size), jnp.float32), jnp.ones(size, bool), b)
+    matched = Matches(
+        jnp.asarray(n, jnp.float32), jnp.asarray(rng.normal(size=size), jnp.float32), jnp.ones(size, bool), b
+    )
     weight = jnp.asarray(rng.uniform(size=size) > 0.3)
     p = jnp.asarray([-0.066, -0.099, 0.159, -0.057, -0.060, -0.0137], jnp.float32)
     jitted = np.asarray(jax.jit(jax.jacfwd(_residuals))(p, b, matched, weight))

@@ -30,7 +30,7 @@ def test_voxel_grid_nearest_matches_brute_force_within_reach():
     queries = pts[:, :500] + 0.01 * rng.normal(size=(3, 500)).astype(np.float32)
     step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
     grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
-    idx, dist = neighbours.nearest(grid, jnp.asarray(pts), jnp.asarray(queries), 16)
+    idx, dist = neighbours.nearest(grid, jnp.asarray(queries), 16)
     d2 = ((queries.T[:, None, :] - pts.T[None]) ** 2).sum(-1)
     d2[:, ~valid] = np.inf
     exact = np.sqrt(d2.min(1))
@@ -38,11 +38,30 @@ def test_voxel_grid_nearest_matches_brute_force_within_reach():
     assert reach.mean() > 0.5
     np.testing.assert_allclose(np.asarray(dist)[reach], exact[reach], rtol=1e-5)
     assert np.all(np.asarray(dist) >= exact - 1e-6)  # never nearer than the truth
-    knn, kd2 = neighbours.k_nearest(grid, jnp.asarray(pts), jnp.asarray(queries), 5, 16)
+    np.testing.assert_allclose(
+        np.linalg.norm(pts[:, np.asarray(idx)] - queries, axis=0)[reach], exact[reach], rtol=1e-5
+    )
+    knn, kd2 = neighbours.k_nearest(grid, jnp.asarray(queries), 5, 16)
     kd2 = np.asarray(kd2)
     exact5 = np.sort(d2, axis=1)[:, :5]
     within = exact5[:, -1] < (2 * step) ** 2
     np.testing.assert_allclose(kd2[within], exact5[within], rtol=1e-4, atol=1e-9)
+
+
+@pytest.mark.parametrize("count, line", [(3, False), (16, False), (60, True)])
+def test_voxel_grid_search_of_a_few_points_reads_windows_at_the_end_of_the_order(count, line):
+    # Fewer points than slots, or a line of points a few per column: windows at the end of
+    # the key order are clamped to the end of the arrays and must still find every point.
+    rng = np.random.default_rng(count)
+    pts = rng.uniform(0.0, 0.1, (3, count)).astype(np.float32)
+    if line:
+        pts[0] = np.linspace(0.0, 6.0, count)
+    grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.ones(count, bool), 0.2)
+    queries = pts + 0.001
+    idx, dist = neighbours.nearest(grid, jnp.asarray(queries), 16)
+    exact = np.sqrt(((queries.T[:, None, :] - pts.T[None]) ** 2).sum(-1))
+    np.testing.assert_array_equal(np.asarray(idx), exact.argmin(1))
+    np.testing.assert_allclose(np.asarray(dist), exact.min(1), rtol=1e-5)
 
 
 def test_tof_noise_grows_with_range_and_flying_pixels_sit_between_surfaces():
