@@ -75,6 +75,12 @@ p in units of 1° and 1 cm): under range noise the matches keep changing by amou
 cannot resolve, and "not converged" must mark an unreliable result, not a noisy pair.
 Noise-free, σ̂ ≈ 0 and `ROUND_TOL` decides."""
 
+SIGMA_FLOOR = 1e-4
+"""Smallest residual scale σ̂ of [`fine_covariance`][], metres: on noise-free views the
+residuals are round-off (≈ 1e-7 m in float32), and σ̂² (JᵀJ)⁻¹ at that scale is not positive
+definite in float32, so the tracker would refuse every noise-free measurement. 0.1 mm is
+below the accuracy any registration of these clouds reaches (the sampling step is ≈ 1 cm)."""
+
 ROBUST_FLOOR = 5e-4
 """Smallest Cauchy scale c, metres: noise-free residuals do not shrink it to nothing."""
 
@@ -275,13 +281,14 @@ def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Arra
     """Least-squares covariance of a fine-stage result p (radians and metres, frame n):
     Σ = σ̂² (JᵀJ)⁻¹, with J the Jacobian of the matched point-to-plane residuals at p (the
     Gauss–Newton Hessian of the fine objective) and σ̂² = Σ r² / (n − 6) over the n inliers.
-    Assumes independent residuals; `experiments/nees.py` measures how far that holds."""
+    Assumes independent residuals; `experiments/nees.py` measures how far that holds. σ̂ is
+    at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite covariance."""
     p = jnp.asarray(p, problem.d.dtype)
     b, live = select_current(problem, config, p)
     matched, weight = _correspond(p, b, live, problem.fine, config.fine_inlier)
     J = jax.jacfwd(_residuals)(p, b, matched, weight)
     r = _residuals(p, b, matched, weight)
-    sigma2 = jnp.sum(r**2) / jnp.maximum(jnp.sum(weight) - 6, 1)
+    sigma2 = jnp.maximum(jnp.sum(r**2) / jnp.maximum(jnp.sum(weight) - 6, 1), SIGMA_FLOOR**2)
     cov = sigma2 * jnp.linalg.inv(J.T @ J)
     return (cov + cov.T) / 2
 

@@ -69,6 +69,10 @@ filter's state is never non-finite."""
 SYMMETRY_TOL = 1e-6
 """Largest |Σ − Σᵀ| relative to max |Σ| for a measurement covariance to count as symmetric."""
 
+PSD_TOL = 1e-5
+"""Most negative eigenvalue of a usable measurement covariance, relative to its largest:
+round-off of a float32 covariance of condition 10¹¹ (see `measurement_usable`)."""
+
 
 def _tree_finite(tree) -> Bool[Array, ""]:
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree)]))
@@ -83,13 +87,22 @@ def _positive_definite(S: Float[Array, "n n"]) -> Bool[Array, ""]:
 
 def measurement_usable(rotation, translation, cov: Float[Array, "6 6"]) -> Bool[Array, ""]:
     """Whether a measured motion can be fused: rotation (3, 3) and translation (3,, m) finite,
-    and its covariance `cov` (rad, then m) finite, symmetric (`SYMMETRY_TOL`) and positive
-    definite. Jittable; the filters skip a frame that fails it and flag it
-    `FILTER_BAD_MEASUREMENT`."""
+    and its covariance `cov` (rad, then m) finite, symmetric (`SYMMETRY_TOL`), not zero and
+    positive semi-definite to within `PSD_TOL` of its largest eigenvalue. Jittable; the
+    filters skip a frame that fails it and flag it `FILTER_BAD_MEASUREMENT`.
+
+    Semi-definite, not definite: where the visible faces leave a direction free (a slide
+    along N5's faces), the point-to-plane covariance is huge along it and tiny across
+    (condition ≈ 10¹¹), which no float32 Cholesky factor resolves; the measurement still
+    carries its information, and the update's own check (a positive definite innovation
+    covariance) guards the numerics."""
     finite = _tree_finite((rotation, translation, cov))
-    scale = jnp.max(jnp.abs(jnp.where(jnp.isfinite(cov), cov, 0.0)))
-    symmetric = jnp.max(jnp.abs(cov - cov.T)) <= SYMMETRY_TOL * scale
-    return finite & symmetric & _positive_definite((cov + cov.T) / 2)
+    safe = jnp.where(finite, cov, jnp.eye(6, dtype=cov.dtype))
+    scale = jnp.max(jnp.abs(safe))
+    symmetric = jnp.max(jnp.abs(safe - safe.T)) <= SYMMETRY_TOL * scale
+    eig = jnp.linalg.eigvalsh((safe + safe.T) / 2)
+    semidefinite = (eig[-1] > 0) & (eig[0] >= -PSD_TOL * eig[-1])
+    return finite & symmetric & semidefinite
 
 
 def _guarded_update(filt, predicted, updated, estimate_ok, usable, innovation_ok):

@@ -1,0 +1,158 @@
+"""Speed of the public call on the realistic benchmark's clouds, GICP in the same run (issue 22).
+
+- **Warm per pair:** `jp.estimate(prev, curr, key=...)` with the default config, after a first
+  call per pair (which compiles when the pair opens a new capacity bucket; that time is
+  reported apart), median of `repeats` calls; small_gicp's GICP (1 thread, as in the
+  realistic benchmark) median of `repeats` calls on the same clouds. N5, the satellite and
+  the upper stage at σ = 0 and 1 cm.
+- **Cold start:** a fresh process with an empty persistent compilation cache: import to first
+  result on one pair, and the compile time of the estimate program alone; then a second
+  fresh process with that cache warm.
+- **CLI end to end:** `jaxpose estimate a.ply b.ply` as a subprocess, cold and warm cache.
+- **Batched:** `jax.vmap` of `estimate` over `batch` pairs of one bucket (the jit path, a
+  config sized for the camera), pairs per second.
+
+    uv run --extra peers python experiments/public_speed.py [pairs] [repeats] [batch]
+        → results/public_speed.{json,md}
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from _common import RESULTS, write_json
+
+import jaxpose as jp
+from jaxpose import realistic
+from jaxpose.estimate import _estimate_pair
+
+TARGETS = ("n5", "satellite", "upper_stage")
+LEVELS = (0.0, 1.0)
+
+COLD = """
+import json, sys, time
+t0 = time.perf_counter()
+import jax
+jax.config.update("jax_compilation_cache_dir", sys.argv[1])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+import jaxpose as jp
+from jaxpose import realistic
+from jaxpose.estimate import _estimate_pair
+case = realistic.make_cases(1, names=("n5",), levels=(1.0,))[0]
+t1 = time.perf_counter()
+est = jp.estimate(case.prev, case.curr, key=jax.random.key(0))
+est.params.block_until_ready()
+t2 = time.perf_counter()
+print(json.dumps({"import_s": t1 - t0, "first_result_s": t2 - t1, "compile_s": _estimate_pair.last_compile_s,
+                  "status": int(est.status)}))
+"""
+
+
+def median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def warm_pairs(pairs: int, repeats: int) -> list[dict]:
+    rows = []
+    for case in realistic.make_cases(pairs, names=TARGETS, levels=LEVELS):
+        key = jax.random.key(case.index)
+        _estimate_pair.last_compile_s = 0.0
+        t0 = time.perf_counter()
+        est = jax.block_until_ready(jp.estimate(case.prev, case.curr, key=key))
+        first = time.perf_counter() - t0
+        ms = 1e3 * median_time(lambda c=case, k=key: jp.estimate(c.prev, c.curr, key=k), repeats)
+        a, b = case.prev.compact(), case.curr.compact()
+        gicp_ms = 1e3 * median_time(lambda a=a, b=b: realistic.gicp(a, b), repeats)
+        R, t = realistic.gicp(a, b)
+        row = {
+            "target": case.target,
+            "sigma_cm": case.sigma_cm,
+            "pair": case.index,
+            "jaxpose_ms": ms,
+            "gicp_ms": gicp_ms,
+            "first_call_s": first,
+            "compile_s": _estimate_pair.last_compile_s,
+            "status": int(est.status),
+            "jaxpose": realistic.errors(case, est.rotation, est.translation),
+            "gicp": realistic.errors(case, R, t),
+        }
+        rows.append(row)
+        print(f"{case.label}: {ms:.0f} ms (GICP {gicp_ms:.0f} ms), compile {row['compile_s']:.1f} s", flush=True)
+    return rows
+
+
+def fresh_process(cache: str) -> dict:
+    out = subprocess.run([sys.executable, "-c", COLD, cache], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def cli_end_to_end(folder: Path, cache: str) -> float:
+    case = realistic.make_cases(1, names=("n5",), levels=(1.0,))[0]
+    a, b = folder / "a.ply", folder / "b.ply"
+    jp.save_cloud(a, case.prev)
+    jp.save_cloud(b, case.curr)
+    env = {**os.environ, "JAXPOSE_CACHE": cache}
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "jaxpose.cli", "estimate", str(a), str(b)], env=env, capture_output=True)
+    return time.perf_counter() - t0
+
+
+def batched(batch: int, repeats: int) -> dict:
+    cases = realistic.make_cases(batch, names=("n5",), levels=(1.0,))
+    config = jp.Config().sized_for(jp.Camera.camcube2(), 1.9)
+    stack = lambda xs: jax.tree.map(lambda *x: np.stack(x), *xs)  # noqa: E731
+    prev, curr = stack([c.prev for c in cases]), stack([c.curr for c in cases])
+    keys = jax.random.split(jax.random.key(0), batch)
+    fn = jax.jit(jax.vmap(lambda p, c, k: jp.estimate(p, c, config, key=k)))
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(prev, curr, keys))
+    compile_s = time.perf_counter() - t0
+    seconds = median_time(lambda: fn(prev, curr, keys), repeats)
+    return {"batch": batch, "compile_s": compile_s, "median_s": seconds, "pairs_per_s": batch / seconds}
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = ["| target | σ, cm | pairs | jaxpose median ms | GICP median ms | ratio |", "|---|---|---|---|---|---|"]
+    for target in TARGETS:
+        for sigma in LEVELS:
+            group = [r for r in rows if r["target"] == target and r["sigma_cm"] == sigma]
+            mine = statistics.median(r["jaxpose_ms"] for r in group)
+            theirs = statistics.median(r["gicp_ms"] for r in group)
+            lines.append(f"| {target} | {sigma:g} | {len(group)} | {mine:.0f} | {theirs:.0f} | {mine / theirs:.1f}× |")
+    return "\n".join(lines) + "\n"
+
+
+def main(pairs: int = 4, repeats: int = 5, batch: int = 8) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = str(Path(tmp) / "xla")
+        cold = fresh_process(cache)
+        warm_cache = fresh_process(cache)
+        cli_cache = str(Path(tmp) / "cli")
+        cli = {"cold_s": cli_end_to_end(Path(tmp), cli_cache), "warm_cache_s": cli_end_to_end(Path(tmp), cli_cache)}
+    print("cold", cold, "warm cache", warm_cache, "cli", cli, flush=True)
+    rows = warm_pairs(pairs, repeats)
+    vmapped = batched(batch, repeats)
+    print("batched", vmapped, flush=True)
+    table = markdown(rows)
+    print(table)
+    payload = {"cold_process": cold, "warm_cache_process": warm_cache, "cli": cli, "batched": vmapped, "rows": rows}
+    write_json("public_speed.json", payload)
+    (RESULTS / "public_speed.md").write_text(table)
+
+
+if __name__ == "__main__":
+    main(*(int(a) for a in sys.argv[1:]))
