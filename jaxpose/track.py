@@ -61,8 +61,8 @@ FILTER_STATUS_NAME = {
 }
 """The filter's own per-frame status (`Track.filter_status`): the frame's measurement was fused
 (frame 0, the filter's start, counts as updated); its estimate was no success; the measurement
-or its covariance was unusable (non-finite, or the covariance not symmetric positive
-definite); or the update itself gave a non-finite state or an innovation covariance that is
+or its covariance was unusable (see `measurement_usable`: non-finite, or the covariance not
+symmetric positive semi-definite); or the update itself gave a non-finite state or an innovation covariance that is
 not positive definite. In every case but the first the frame is a prediction only, so the
 filter's state is never non-finite."""
 
