@@ -10,8 +10,8 @@ from pathlib import Path
 import jax.numpy as jnp
 
 import jaxpose as jp
-from jaxpose.bench import block, machine, time_call  # noqa: F401  (re-exported for the scripts)
-from jaxpose.scenarios import PAPER_T, paper_pose
+from jaxpose.evaluation.bench import block, machine, time_call  # noqa: F401  (re-exported for the scripts)
+from jaxpose.sim import PAPER_T, paper_pose
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 T_PAPER = jnp.asarray(PAPER_T)

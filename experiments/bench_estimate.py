@@ -25,8 +25,9 @@ import numpy as np
 from _common import T_PAPER, paper_cloud, paper_rotation, time_call, write_json
 
 import jaxpose as jp
-from jaxpose.estimate import STATUS_NAME, STATUS_TEXT, estimate_problem
-from jaxpose.scenarios import capture_pair
+from jaxpose._estimate import STATUS_NAME, STATUS_TEXT, estimate_problem
+from jaxpose.evaluation.comparison import outcome_counts
+from jaxpose.sim import capture_pair
 
 PRESETS = ("fast", "accurate", "thorough")
 DEG_CM = np.array([180 / np.pi] * 3 + [100] * 3)
@@ -59,8 +60,8 @@ def paper_rows(name: str, config: jp.Config, repeats: int) -> list[dict]:
                     "status": STATUS_TEXT[int(est.status)],
                     "hard": float(est.hard),
                     "error_deg_cm": err.round(6).tolist(),
-                    "local_steps": int(est.local_steps),
-                    "fine_steps": int(est.fine_steps),
+                    "local_steps": int(est.stats["refine_steps"]),
+                    "fine_steps": int(est.stats["fine_steps"]),
                 }
             )
             print(
@@ -90,12 +91,13 @@ def random_views(name: str, config: jp.Config, count: int = 16) -> dict:
         success.append(bool(est.success))
         status.append(STATUS_NAME[int(est.status)])
     rot, shift = np.array(rot), np.array(shift)
+    counts = outcome_counts(rot < 1.0, success)
     out = {
         "pairs": count,
         "refused": refused,
-        "found_lt_1deg": int(np.sum(rot < 1.0)),
+        "found_lt_1deg": counts["found"],
         "reported_success": int(np.sum(success)),
-        "false_success_ge_1deg": int(np.sum((rot >= 1.0) & np.array(success))),
+        "false_success_ge_1deg": counts["false_success"],
         "rotation_error_deg": {"median": float(np.median(rot)), "max": float(rot.max())},
         "translation_error_cm": {"median": float(np.median(shift)), "p90": float(np.quantile(shift, 0.9))},
         "translation_error_cm_all": shift.round(4).tolist(),

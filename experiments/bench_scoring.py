@@ -12,7 +12,7 @@ import jax.numpy as jnp
 from _common import paper_cloud, time_call, write_json
 
 import jaxpose as jp
-from jaxpose.batch import score_batch
+from jaxpose._batch import score_batch
 
 
 def main(batches=(1, 16, 256, 4096), repeats: int = 5):

@@ -21,10 +21,9 @@ from _common import write_json
 from tumble_tracking import true_rates
 
 import jaxpose as jp
-from jaxpose.comparison import pair_errors
-from jaxpose.scenarios import Pair
-from jaxpose.sequence import Tumble, tumble_poses
-from jaxpose.track import track
+from jaxpose.evaluation.comparison import pair_errors
+from jaxpose.sim import Pair, Tumble, tumble_poses
+from jaxpose.tracking._track import track
 
 RANGES = (3.0, 4.0, 5.0, 6.0, 7.0)
 NOISE = 0.01

@@ -18,8 +18,9 @@ import numpy as np
 from _common import write_json
 
 import jaxpose as jp
-from jaxpose.scenarios import paper_pairs
-from jaxpose.search import LOCAL_SCALE, global_search, local_refine
+from jaxpose._poses import PARAMETER_SCALE
+from jaxpose._search import global_search, local_refine
+from jaxpose.sim import paper_pairs
 
 OFFSETS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
 TRIALS = 6
@@ -46,7 +47,7 @@ def run_method(name, config, problem, start, key):
 
 def main():
     rows = []
-    scale = np.asarray(LOCAL_SCALE)
+    scale = np.asarray(PARAMETER_SCALE)
     for pair in paper_pairs():
         problem = jp.Problem.build(pair.prev, pair.curr, METHODS["BFGS"])
         truth = jp.true_displacement(problem.frame, pair.R1, pair.t1, pair.R2, pair.t2)

@@ -20,7 +20,7 @@ import numpy as np
 from _common import RESULTS, T_PAPER, paper_rotation, write_json
 
 import jaxpose as jp
-from jaxpose.estimate import STATUS_TEXT, estimate_problem
+from jaxpose._estimate import STATUS_TEXT, estimate_problem
 
 CONDITIONS = {
     "clean": {},

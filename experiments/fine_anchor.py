@@ -28,7 +28,7 @@ from _common import write_json
 from bench_estimate import random_views
 
 import jaxpose as jp
-from jaxpose.sequence import Tumble, simulate_sequence
+from jaxpose.sim import Tumble, simulate_sequence
 
 KEYFRAMES = (0, 25, 50, 75)
 OFFSETS = (2, 6, 10, 14, 18, 22)

@@ -17,9 +17,9 @@ import numpy as np
 from _common import write_json
 
 import jaxpose as jp
-from jaxpose.comparison import pair_errors
-from jaxpose.estimate import STATUS_NAME, estimate_problem
-from jaxpose.scenarios import paper_pairs, paper_pose, rotated_pair
+from jaxpose._estimate import STATUS_NAME, estimate_problem
+from jaxpose.evaluation.comparison import pair_errors
+from jaxpose.sim import paper_pairs, paper_pose, rotated_pair
 
 NOISY_PAIRS = 8
 

@@ -21,7 +21,7 @@ import optimistix as optx  # noqa: E402
 from _common import T_PAPER, paper_cloud, paper_rotation, write_json  # noqa: E402
 
 import jaxpose as jp  # noqa: E402
-from jaxpose.objective import _smoothstep, to_moved_frame  # noqa: E402
+from jaxpose._objective import _smoothstep, to_moved_frame  # noqa: E402
 
 SCALE = jnp.array([np.pi / 180] * 3 + [0.01] * 3)
 # Kernel width σ (cells) and selection edge width (× d). The pairwise sums take minutes per

@@ -17,10 +17,10 @@ import numpy as np
 from _common import write_json
 
 import jaxpose as jp
-from jaxpose.comparison import pair_errors
-from jaxpose.model_fit import fit_model
-from jaxpose.poses import relative_motion
-from jaxpose.scenarios import paper_pairs
+from jaxpose._poses import relative_motion
+from jaxpose.evaluation.comparison import pair_errors
+from jaxpose.evaluation.model_fit import fit_model
+from jaxpose.sim import paper_pairs
 
 OFFSETS = ((2.0, 2.0), (5.0, 5.0), (10.0, 10.0), (20.0, 20.0))
 TRIALS = 5

@@ -3,7 +3,7 @@ keys. Error = largest |found − truth| component in frame n (degrees or cm).
 
 - default: the refine's `Config.local_tol` (units of 1° and 1 cm) in `Config.thorough()`;
 - `fine`: the fine stage's `Config.fine_tol` (LM's rtol = atol, same units) in the default
-  config, with the fine stage's LM steps over all its rounds (`Estimate.fine_steps`).
+  config, with the fine stage's LM steps over all its rounds (`Estimate.stats["fine_steps"]`).
 
     uv run python experiments/local_tolerance.py       →  results/local_tolerance.json
     uv run python experiments/local_tolerance.py fine  →  results/fine_tolerance.json
@@ -18,7 +18,7 @@ import numpy as np
 from _common import T_PAPER, paper_cloud, paper_rotation, write_json
 
 import jaxpose as jp
-from jaxpose.estimate import SUCCESS, estimate_problem
+from jaxpose._estimate import SUCCESS, estimate_problem
 
 SWEEPS = {
     # name: (Config field, values, preset, Estimate field counting the stage's steps, output)

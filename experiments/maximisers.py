@@ -14,7 +14,7 @@ import optimistix as optx
 from _common import T_PAPER, paper_cloud, paper_rotation, write_json
 
 import jaxpose as jp
-from jaxpose.batch import score_batch
+from jaxpose._batch import score_batch
 
 
 def main(samples: int = 20000):

@@ -20,7 +20,7 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 sys.path.insert(0, "experiments")
 from _common import paper_cloud
 import jaxpose as jp
-from jaxpose.estimate import estimate_problem
+from jaxpose._estimate import estimate_problem
 batch = int(sys.argv[1])
 config = jp.Config.thorough(max_points=5120)
 problem = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant 2"), config)

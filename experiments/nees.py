@@ -22,10 +22,10 @@ from _common import write_json
 from scipy.stats import chi2
 
 import jaxpose as jp
-from jaxpose.estimate import SUCCESS, estimate_problem
-from jaxpose.fine import fine_covariance
-from jaxpose.scenarios import paper_pose, rotated_pair
-from jaxpose.uncertainty import curvature
+from jaxpose._estimate import SUCCESS, estimate_problem
+from jaxpose._fine import fine_covariance
+from jaxpose._uncertainty import curvature
+from jaxpose.sim import paper_pose, rotated_pair
 
 PAIRS = 20  # per set
 # The centroid anchor of `Config.tracking()`, whose registrations the scale is used for.

@@ -19,8 +19,8 @@ import numpy as np
 from _common import RESULTS
 from tumble_tracking import FILTERS, load_chain, true_rates
 
-from jaxpose.figures import save_figure
-from jaxpose.sequence import Tumble, tumble_poses
+from jaxpose.evaluation.figures import save_figure
+from jaxpose.sim import Tumble, tumble_poses
 
 RATE_HZ = 25.0
 # Legend label → the experiment's filter of that name.

@@ -14,7 +14,7 @@ jax.config.update("jax_enable_x64", sys.argv[1] == "64")
 sys.path.insert(0, "experiments")
 from _common import paper_cloud
 import jaxpose as jp
-from jaxpose.estimate import estimate_problem
+from jaxpose._estimate import estimate_problem
 config = jp.Config.thorough(max_points=5120)
 out = {}
 for shape in ("n1", "n5"):
@@ -22,7 +22,7 @@ for shape in ("n1", "n5"):
         pb = jp.Problem.build(paper_cloud(shape, "previous"), paper_cloud(shape, variant), config)
         est = estimate_problem(pb, config, jax.random.key(0))
         out[f"{shape} {variant}"] = {"params": [float(x) for x in est.params], "status": int(est.status),
-                                     "global_params": [float(x) for x in est.global_params]}
+                                     "global_params": [float(x) for x in est.search.params]}
 print(json.dumps(out))
 """
 

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 from _common import paper_cloud, time_call, write_json
 
 import jaxpose as jp
-from jaxpose import objective as obj
+from jaxpose import _objective as obj
 
 
 def soft_parts(p, problem, scatter=True, gather=True):

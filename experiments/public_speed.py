@@ -32,8 +32,8 @@ import numpy as np
 from _common import RESULTS, write_json
 
 import jaxpose as jp
-from jaxpose import realistic
-from jaxpose.estimate import _estimate_pair
+from jaxpose._estimate import _estimate_pair
+from jaxpose.evaluation import realistic
 
 TARGETS = ("n5", "satellite", "upper_stage")
 LEVELS = (0.0, 1.0)
@@ -45,8 +45,8 @@ import jax
 jax.config.update("jax_compilation_cache_dir", sys.argv[1])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 import jaxpose as jp
-from jaxpose import realistic
-from jaxpose.estimate import _estimate_pair
+from jaxpose.evaluation import realistic
+from jaxpose._estimate import _estimate_pair
 case = realistic.make_cases(1, names=("n5",), levels=(1.0,))[0]
 t1 = time.perf_counter()
 est = jp.estimate(case.prev, case.curr, key=jax.random.key(0))
@@ -107,7 +107,7 @@ def cli_end_to_end(folder: Path, cache: str) -> float:
     jp.save_cloud(b, case.curr)
     env = {**os.environ, "JAXPOSE_CACHE": cache}
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "jaxpose.cli", "estimate", str(a), str(b)], env=env, capture_output=True)
+    subprocess.run([sys.executable, "-m", "jaxpose._cli", "estimate", str(a), str(b)], env=env, capture_output=True)
     return time.perf_counter() - t0
 
 

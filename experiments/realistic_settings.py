@@ -18,7 +18,7 @@ import math
 from _common import write_json
 
 import jaxpose as jp
-from jaxpose import realistic
+from jaxpose.evaluation import realistic
 
 FIXED = {"max_points": 20480, "max_prev_points": 20480, "grid_cells": 256, "max_cells": 8192}
 

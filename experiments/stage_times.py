@@ -17,10 +17,10 @@ import jax.numpy as jnp
 from _common import write_json
 
 import jaxpose as jp
-from jaxpose import realistic
-from jaxpose.fine import fine_refine
-from jaxpose.problem import _build, sized_config
-from jaxpose.search import local_refine, restarted_search
+from jaxpose._fine import fine_refine
+from jaxpose._problem import _build, sized_config
+from jaxpose._search import local_refine, restarted_search
+from jaxpose.evaluation import realistic
 
 
 def timed(fn, *args, repeats: int):

@@ -28,9 +28,9 @@ import numpy as np
 from _common import RESULTS, write_json
 
 import jaxpose as jp
-from jaxpose.estimate import SUCCESS
-from jaxpose.sequence import Tumble, simulate_sequence
-from jaxpose.track import FILTER_UPDATED, _track_program
+from jaxpose._estimate import SUCCESS
+from jaxpose.sim import Tumble, simulate_sequence
+from jaxpose.tracking._track import FILTER_UPDATED, _track_program
 
 FAMILIES = ("n5", "chibis_m", "satellite", "upper_stage", "fragment")
 NOISE_CM = (0.0, 0.5, 1.0, 2.0)

@@ -31,8 +31,8 @@ import numpy as np
 from _common import RESULTS, write_json
 
 import jaxpose as jp
-from jaxpose.sequence import Tumble, simulate_sequence
-from jaxpose.track import COVARIANCE_SCALE, Chain, chain_estimates, filter_chain, filter_keyframes
+from jaxpose.sim import Tumble, simulate_sequence
+from jaxpose.tracking._track import COVARIANCE_SCALE, Chain, chain_estimates, filter_chain, filter_keyframes
 
 # name → (filter, options: rad, m, rad/s/√s, rad/s²/√s, m/s/√s). The keyframe filter's
 # defaults (the `track` default) are shared_fraction 0.5 and accel_noise 1e-2.

@@ -1,53 +1,103 @@
 """jaxpose: change of pose of an uncooperative, unknown-shape space target from two lidar
 point clouds, by plane-intersection patterns (METHOD.md), in JAX.
 
-Data flow: `simulate` (or `load_cloud`) → `Cloud` → `plane_frame` → `Problem` (patterns, grids) →
-`hard_score` / `soft_score` → `estimate` → `track` (sequences from `simulate_sequence`).
+Data flow, one stage per private module (the public names are re-exported here):
+
+    sim/ (simulate) or load_cloud → Cloud → plane_frame → Problem (patterns, grids)
+    → hard_score / soft_score → batched scoring → global search → refine → fine stage
+    → estimate → tracking/ (track)
+
+`jaxpose.evaluation` holds the reproduction, benchmarks and peers; it is not imported here.
 """
 
-from . import targets
-from .camera import Camera
-from .cloud import Cloud
-from .config import Config
-from .estimate import Estimate, estimate
-from .frame import PlaneFrame, plane_frame
-from .io import load_cloud, save_cloud
-from .objective import hard_score, soft_score
-from .poses import (
-    displacement_from_motion,
-    motion_from_displacement,
-    relative_motion,
-    true_displacement,
+from ._cloud import Cloud as Cloud
+from ._config import (
+    Capacities as Capacities,
 )
-from .problem import Problem
-from .rotations import angles, rotation, rotation_angle
-from .sequence import Tumble, simulate_sequence
-from .simulate import simulate
-from .track import track
+from ._config import (
+    Config as Config,
+)
+from ._config import (
+    FineStage as FineStage,
+)
+from ._config import (
+    GlobalSearch as GlobalSearch,
+)
+from ._config import (
+    Patterns as Patterns,
+)
+from ._config import (
+    Refine as Refine,
+)
+from ._config import (
+    Thresholds as Thresholds,
+)
+from ._estimate import Estimate as Estimate
+from ._estimate import Status as Status
+from ._estimate import estimate as estimate
+from ._frame import PlaneFrame as PlaneFrame
+from ._frame import plane_frame as plane_frame
+from ._io import load_cloud as load_cloud
+from ._io import save_cloud as save_cloud
+from ._objective import hard_score as hard_score
+from ._objective import soft_score as soft_score
+from ._objective import to_moved_frame as to_moved_frame
+from ._poses import (
+    displacement_from_motion as displacement_from_motion,
+)
+from ._poses import (
+    motion_from_displacement as motion_from_displacement,
+)
+from ._poses import (
+    relative_motion as relative_motion,
+)
+from ._poses import (
+    true_displacement as true_displacement,
+)
+from ._problem import Problem as Problem
+from ._rotations import angles as angles
+from ._rotations import rotation as rotation
+from ._rotations import rotation_angle as rotation_angle
+from .sim import Camera as Camera
+from .sim import Tumble as Tumble
+from .sim import simulate as simulate
+from .sim import simulate_sequence as simulate_sequence
+from .sim import targets as targets
+from .tracking import Track as Track
+from .tracking import track as track
 
 __all__ = [
     "Camera",
+    "Capacities",
     "Cloud",
     "Config",
+    "FineStage",
+    "GlobalSearch",
+    "Patterns",
+    "Refine",
+    "Status",
+    "Thresholds",
     "Estimate",
     "PlaneFrame",
     "Problem",
-    "hard_score",
-    "plane_frame",
-    "soft_score",
+    "Track",
+    "Tumble",
     "angles",
     "displacement_from_motion",
     "estimate",
+    "hard_score",
     "load_cloud",
-    "save_cloud",
     "motion_from_displacement",
+    "plane_frame",
     "relative_motion",
     "rotation",
     "rotation_angle",
+    "save_cloud",
     "simulate",
     "simulate_sequence",
+    "soft_score",
     "targets",
+    "to_moved_frame",
     "track",
     "true_displacement",
-    "Tumble",
 ]

@@ -8,6 +8,7 @@ import tempfile
 import jax
 
 jax.config.update("jax_enable_x64", True)
+# The package's annotations are checked at run time (jaxtyping + beartype, pyproject's addopts).
 # One persistent compilation cache per test session, empty at its start, so the notebooks'
 # kernels (which inherit the environment) reuse each other's compiles.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp(prefix="jaxpose-test-xla-"))
@@ -18,18 +19,16 @@ import pytest  # noqa: E402
 
 import jaxpose as jp  # noqa: E402
 from jaxpose._programs import memory_mappings, release_all  # noqa: E402
+from jaxpose.sim import PAPER_T, paper_pose  # noqa: E402
 
 DEG = np.pi / 180
-PAPER_POSES = {
-    "previous": (23.5, 23.5, 1.0),
-    "variant1": (24.5, 24.5, 2.0),
-    "variant2": (33.5, 33.5, 11.0),
-}
-T_PAPER = np.array([0.0, 0.0, 5.5])
+PAPER_POSE_NAMES = {"previous": "previous", "variant1": "variant 1", "variant2": "variant 2"}
+"""Short fixture keys for the paper's poses (jaxpose.sim.PAPER_POSES)."""
+T_PAPER = np.asarray(PAPER_T)
 
 
 def paper_rotation(name):
-    return jp.rotation(*(a * DEG for a in PAPER_POSES[name]))
+    return paper_pose(PAPER_POSE_NAMES[name])[0]
 
 
 @pytest.fixture(scope="session")
@@ -43,7 +42,7 @@ def paper_clouds(camera):
     out = {}
     for shape in ("n1", "n5"):
         target = getattr(jp.targets, shape)()
-        for pose in PAPER_POSES:
+        for pose in PAPER_POSE_NAMES:
             out[shape, pose] = jp.simulate(camera, target, paper_rotation(pose), jnp.asarray(T_PAPER))
     return out
 

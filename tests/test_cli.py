@@ -1,6 +1,6 @@
 from typer.testing import CliRunner
 
-from jaxpose.cli import app
+from jaxpose._cli import app
 
 
 def test_paper_command_prints_and_writes_the_table(tmp_path):

@@ -4,9 +4,9 @@ dependency) on a paper pair."""
 import numpy as np
 import pytest
 
-from jaxpose.comparison import pair_errors, run_peer, summarise
-from jaxpose.peers import PEERS, available_peers
-from jaxpose.scenarios import paper_pair
+from jaxpose.evaluation.comparison import pair_errors, run_peer, summarise
+from jaxpose.evaluation.peers import PEERS, available_peers
+from jaxpose.sim import paper_pair
 
 PAIR = paper_pair("N5", "variant 2")
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from jaxpose.dynamics import cw_closed_form, propagate_attitude, propagate_cw, quat_to_matrix
+from jaxpose.sim._dynamics import cw_closed_form, propagate_attitude, propagate_cw, quat_to_matrix
 
 MU, R_ORBIT = 3.986004418e14, 6371e3 + 600e3  # m³/s², m: a 600 km circular orbit
 OMEGA = np.sqrt(MU / R_ORBIT**3)

@@ -9,10 +9,10 @@ import trimesh
 from conftest import T_PAPER, paper_rotation
 
 import jaxpose as jp
-from jaxpose.estimate import AT_BOX_EDGE, DEGENERATE, LOW_SCORE, NOT_CONVERGED, STATUS_TEXT, SUCCESS, estimate_problem
-from jaxpose.search import recentred_search, restarted_search
+from jaxpose._estimate import AT_BOX_EDGE, DEGENERATE, LOW_SCORE, NOT_CONVERGED, STATUS_TEXT, SUCCESS, estimate_problem
+from jaxpose._search import recentred_search, restarted_search
 
-CONFIG = jp.Config.fast(max_points=5120)  # fixed capacity: every test shares one compile
+CONFIG = jp.Config.fast(capacities=jp.Capacities(max_points=5120))  # fixed capacity: every test shares one compile
 
 
 def errors(est, variant):
@@ -47,8 +47,8 @@ def test_paper_pairs_within_issue_bounds(paper_clouds, shape, variant):
     # previous point: 0.65–0.85 with the default's 896 points a side (0.75+ with 2048). The
     # Cauchy-weighted RMS keeps the down-weighted edge matches (a current point near a panel's
     # edge matched to the other face's plane, centimetres off at weight ≈ 1e-3): 2–3e-5 m.
-    assert float(est.inliers) > 0.65 and float(est.fine_rms) < 1e-4 and bool(est.fine_kept)
-    assert 0 < int(est.fine_steps) <= CONFIG.fine_rounds * CONFIG.fine_steps
+    assert float(est.fine.inliers) > 0.65 and float(est.fine.rms) < 1e-4 and bool(est.fine_kept)
+    assert 0 < int(est.stats["fine_steps"]) <= CONFIG.fine.rounds * CONFIG.fine.steps
 
 
 def test_recovers_the_paper_variant2_displacement(n5_estimate):
@@ -62,8 +62,8 @@ def test_recovers_the_paper_variant2_displacement(n5_estimate):
     assert np.degrees(float(jp.rotation_angle(est.rotation, R_true))) < 0.5
     # CMA-ES history is recorded; the fine stage (a different objective) may trade a little
     # soft score for accuracy, but not the match itself.
-    assert est.history.shape == (CONFIG.generations,)
-    assert float(est.soft) >= float(est.global_score) - 0.05
+    assert est.search.history.shape == (CONFIG.search.generations,)
+    assert float(est.soft) >= float(est.search.score) - 0.05
 
 
 def test_same_key_gives_identical_result(paper_clouds, n5_estimate):
@@ -106,36 +106,46 @@ def test_degenerate_pair_raises_at_the_boundary(paper_clouds):
         jp.estimate(flat, paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
 
 
+def search_config(**search) -> jp.Config:
+    """`Config.fast()` with these global-search settings."""
+    return jp.Config.fast(search=jp.GlobalSearch(**search))
+
+
 def test_the_search_scores_a_coarse_problem_of_the_same_frame(paper_clouds):
-    """Config.coarse: the global search's problem has cells (and slabs) of coarse·d, at most
-    coarse_points current points, the previous cloud's frame n, and no fine stage."""
+    """GlobalSearch.coarse_factor: the search's problem has cells (and slabs) of coarse_factor·d,
+    at most coarse_points current points, the previous cloud's frame n, and no fine stage."""
     prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
     problem = jp.Problem.build(prev, curr, CONFIG)
     coarse = problem.search_problem
-    assert coarse is problem.coarse and CONFIG.coarse == 3
+    assert coarse is problem.coarse and CONFIG.search.coarse_factor == 3
     assert float(coarse.d) == pytest.approx(3 * float(problem.d))
-    assert coarse.curr.shape[1] == CONFIG.coarse_points == int(coarse.curr_valid.sum())
+    assert coarse.curr.shape[1] == CONFIG.search.coarse_points == int(coarse.curr_valid.sum())
     np.testing.assert_array_equal(np.asarray(coarse.frame.axes), np.asarray(problem.frame.axes))
     assert coarse.coarse is None and int(coarse.fine.valid.sum()) == 0
     # A grid of ⌈C/3⌉ + 2 cells holds its patterns (cells three times as wide).
     assert coarse.grid_cells == -(-problem.grid_cells // 3) + 2 and int(coarse.status) == 0
-    assert jp.Problem.build(prev, curr, jp.Config.fast(max_points=5120, coarse=1)).search_problem.coarse is None
+    assert (
+        jp.Problem.build(
+            prev, curr, jp.Config.fast(search=jp.GlobalSearch(coarse_factor=1), capacities=CONFIG.capacities)
+        ).search_problem.coarse
+        is None
+    )
 
 
 def test_recentred_search_reaches_beyond_the_box_and_flags_its_edge(paper_clouds):
     # The N5 variant-2 truth has an angle of about 11.7° in frame n: outside a ±8° box. On the
     # full patterns (coarse=1): the default's coarse ones (cells three times as wide) resolve
     # the optimum more coarsely, which the refine then corrects.
-    full = jp.Config.fast(max_points=5120, coarse=1)
+    full = jp.Config.fast(search=jp.GlobalSearch(coarse_factor=1), capacities=CONFIG.capacities)
     problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], full)
     truth = jp.true_displacement(
         problem.frame, paper_rotation("previous"), T_PAPER, paper_rotation("variant2"), T_PAPER
     )
     box = np.radians(8.0)
     assert np.abs(np.asarray(truth[:3])).max() > 1.2 * box
-    one = recentred_search(problem, jp.Config.fast(angle_box=box, recentre=0, coarse=1), jax.random.key(1))
+    one = recentred_search(problem, search_config(angle_box=box, recentre=0, coarse_factor=1), jax.random.key(1))
     assert bool(one.at_edge) and int(one.recentred) == 0
-    more = recentred_search(problem, jp.Config.fast(angle_box=box, recentre=2, coarse=1), jax.random.key(1))
+    more = recentred_search(problem, search_config(angle_box=box, recentre=2, coarse_factor=1), jax.random.key(1))
     assert int(more.recentred) >= 1 and not bool(more.at_edge)
     rot = np.degrees(float(jp.rotation_angle(jp.rotation(*more.params[:3]), jp.rotation(*truth[:3]))))
     assert rot < 1.0 and float(more.score) > float(one.score)
@@ -143,15 +153,15 @@ def test_recentred_search_reaches_beyond_the_box_and_flags_its_edge(paper_clouds
 
 def test_restarts_keep_the_best_of_independent_searches_and_stop_on_a_trusted_score(n5_problem):
     key = jax.random.key(3)
-    base = jp.Config.fast(recentre=0)
+    base = search_config(recentre=0)
     one, restarted = eqx.filter_jit(recentred_search), eqx.filter_jit(restarted_search)  # restart_below is traced
     first = one(n5_problem, base, key)
     # A score at or above restart_below is trusted: no restart, the first search unchanged.
-    trusted = restarted(n5_problem, jp.Config.fast(recentre=0, restarts=2, restart_below=0.0), key)
+    trusted = restarted(n5_problem, search_config(recentre=0, restarts=2, restart_below=0.0), key)
     assert int(trusted.restarts) == 0 and np.allclose(trusted.params, first.params, rtol=1e-9, atol=1e-12)
     # Never trusted: both restarts run, and the result is the best of the three searches,
     # checked against the searches run one by one with the documented keys.
-    always = restarted(n5_problem, jp.Config.fast(recentre=0, restarts=2, restart_below=1.0), key)
+    always = restarted(n5_problem, search_config(recentre=0, restarts=2, restart_below=1.0), key)
     searches = [first] + [one(n5_problem, base, jax.random.fold_in(key, r)) for r in (1, 2)]
     best = max(searches, key=lambda g: float(g.score))
     assert int(always.restarts) == 2
@@ -165,10 +175,10 @@ def test_wide_mode_captures_a_pair_that_three_planes_get_wrong():
     """Capture pair 71 (a 16° motion of N5 at a random attitude): three planes put their
     soft maximum 4° from the truth and the estimate reported a false success; wide mode's
     nine planes find it."""
-    from jaxpose.scenarios import capture_pair
+    from jaxpose.sim import capture_pair
 
     pair = capture_pair(71)
-    config = jp.Config.wide(max_points=10240, max_cells=1024, grid_cells=160)
+    config = jp.Config.wide(capacities=jp.Capacities(max_points=10240, max_cells=1024, grid_cells=160))
     est = jp.estimate(pair.prev, pair.curr, config, key=jax.random.fold_in(jax.random.key(0), 71))
     R_true, _ = pair.motion
     assert int(est.status) == SUCCESS, STATUS_TEXT[int(est.status)]
@@ -176,6 +186,20 @@ def test_wide_mode_captures_a_pair_that_three_planes_get_wrong():
 
 
 def test_a_motion_outside_the_box_is_not_reported_as_success(paper_clouds):
-    config = jp.Config.fast(max_points=5120, angle_box=np.radians(8.0), recentre=0)
+    config = jp.Config.fast(
+        search=jp.GlobalSearch(angle_box=np.radians(8.0), recentre=0), capacities=jp.Capacities(max_points=5120)
+    )
     est = jp.estimate(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config, key=jax.random.key(1))
     assert int(est.status) in (AT_BOX_EDGE, LOW_SCORE), STATUS_TEXT[int(est.status)]
+
+
+def test_one_status_vocabulary(n5_estimate):
+    """`Estimate.result` is a `Status` item; `status` is its code, and the code tables are
+    views of the same enumeration."""
+    est = n5_estimate
+    assert jp.Status[est.result] == STATUS_TEXT[int(est.status)]
+    assert bool(est.success) == (int(est.status) == SUCCESS) == bool(est.result == jp.Status.success)
+    assert STATUS_TEXT[NOT_CONVERGED] == jp.Status[jp.Status.not_converged]
+    assert STATUS_TEXT[AT_BOX_EDGE] == jp.Status[jp.Status.at_box_edge]
+    assert set(STATUS_TEXT) == set(range(6))
+    assert est.stats["evaluations"] == est.search.evaluations and est.stats["fine_steps"] == est.fine.steps

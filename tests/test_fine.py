@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose.fine import (
+from jaxpose._fine import (
     Matches,
     _residuals,
     fine_cloud,
@@ -21,7 +21,7 @@ from jaxpose.fine import (
     spread_subset,
 )
 
-CONFIG = jp.Config.fast(max_points=5120)
+CONFIG = jp.Config.fast(capacities=jp.Capacities(max_points=5120))
 
 
 @settings(max_examples=25, deadline=None)
@@ -47,7 +47,7 @@ def test_normals_of_a_plane_and_no_normal_at_a_corner():
     floor = np.stack([u.ravel(), v.ravel(), np.zeros(u.size)], 1)  # normal z
     wall = np.stack([np.zeros(u.size), v.ravel(), np.abs(u.ravel()) + 0.05], 1)  # normal x
     pts = jnp.asarray(np.concatenate([floor, wall]))
-    config = jp.Config(fine_points=2048)
+    config = jp.Config(fine=jp.FineStage(points=2048))
     fine = fine_cloud(pts, jnp.ones(len(pts), bool), config, ((1, 0.0),), jnp.asarray(0.026))
     P, N, ok = np.asarray(fine.points).T, np.asarray(fine.normals).T, np.asarray(fine.valid)
     on_floor = ok & (np.abs(P[:, 2]) < 1e-12) & (np.abs(P[:, 0]) > 0.2)
@@ -93,7 +93,7 @@ def test_plane_offsets_through_the_centroid_average_the_range_noise():
     pts = jnp.asarray(np.stack([u.ravel(), v.ravel(), np.zeros(u.size)], 1) + noise)
     rms = {}
     for anchor in ("centroid", "point"):
-        config = jp.Config(fine_points=1024, fine_anchor=anchor)
+        config = jp.Config(fine=jp.FineStage(points=1024, anchor=anchor))
         fine = fine_cloud(pts, jnp.ones(len(pts), bool), config, ((2, 0.0),), jnp.asarray(0.026))
         ok = np.asarray(fine.valid)
         N, off = np.asarray(fine.normals).T[ok], np.asarray(fine.offsets)[ok]
@@ -106,7 +106,11 @@ def test_plane_offsets_through_the_centroid_average_the_range_noise():
 
 
 # The tracking preset fits the whole cloud instead of the slabs around the cutting planes.
-WHOLE_CLOUD = jp.Config.tracking(max_points=5120, population=16, generations=20, local_steps=40)
+WHOLE_CLOUD = jp.Config.tracking(
+    search=jp.GlobalSearch(coarse_factor=1, population=16, generations=20),
+    refine=jp.Refine(max_steps=40),
+    capacities=jp.Capacities(max_points=5120),
+)
 
 
 def test_tracking_preset_fits_every_current_point(paper_clouds):
@@ -117,11 +121,11 @@ def test_tracking_preset_fits_every_current_point(paper_clouds):
         _, live = select_current(problem, config, jnp.zeros(6))
         counts[name] = int(live.sum()), int(problem.fine.valid.sum())
     valid_curr, valid_prev = int(curr.valid.sum()), int(prev.valid.sum())
-    assert counts["whole"][0] == min(valid_curr, WHOLE_CLOUD.fine_points)
+    assert counts["whole"][0] == min(valid_curr, WHOLE_CLOUD.fine.points)
     assert counts["slabs"][0] < counts["whole"][0] / 2
     # On the previous side every point is a candidate; the 70 % most planar of those with a
     # normal keep it (a point with fewer than 3 neighbours in reach has none: under 1 % here).
-    candidates = min(valid_prev, WHOLE_CLOUD.fine_points)
+    candidates = min(valid_prev, WHOLE_CLOUD.fine.points)
     assert 0.99 * 0.7 * candidates <= counts["whole"][1] <= 0.7 * candidates + 1
 
 
@@ -140,7 +144,7 @@ def test_fine_stage_recovers_the_displacement_from_a_start_two_degrees_off(paper
     # 3 cm: 0.69 of them with the default's 896 points a side (0.75+ with 2048).
     # With planes through the neighbourhood centroids (the whole-cloud preset), a neighbourhood
     # that reaches over an edge puts its plane a few µm off the face: 0.011 mm RMS measured.
-    rms_bound = 1e-5 if config.fine_anchor == "point" else 2e-5
+    rms_bound = 1e-5 if config.fine.anchor == "point" else 2e-5
     assert float(result.inliers) > 0.65 and float(result.rms) < rms_bound
     # The start was more than 1° off, so the recovery above is the stage's work.
     assert np.degrees(np.abs(np.asarray(start - truth))[:3]).max() > 1.0
@@ -165,7 +169,7 @@ def test_a_noisy_pair_converges_to_its_noise_floor(camera):
 
 
 def test_the_fine_result_is_kept_only_within_the_search_reach():
-    from jaxpose.estimate import within_reach
+    from jaxpose._estimate import within_reach
 
     config = jp.Config()  # box ±20°, ±10 cm, two re-centrings: reach ±60°, ±30 cm
     assert bool(within_reach(jnp.array([1.04, -1.04, 0.0, 0.29, -0.29, 0.0]), config))
@@ -198,7 +202,7 @@ def test_the_covariance_of_a_whole_surface_fit_of_6144_points_is_positive_defini
     R1, R2 = paper_rotation("previous"), paper_rotation("variant2")
     prev = jp.simulate(noisy, jp.targets.n5(), R1, jnp.asarray(T_PAPER), key=keys[0])
     curr = jp.simulate(noisy, jp.targets.n5(), R2, jnp.asarray(T_PAPER), key=keys[1])
-    config = jp.Config(fine_points=6144)
+    config = jp.Config(fine=jp.FineStage(points=6144))
     problem = jp.Problem.build(prev, curr, config)
     truth = jp.true_displacement(problem.frame, R1, T_PAPER, R2, T_PAPER)
     cov = np.asarray(jax.jit(fine_covariance, static_argnums=1)(problem, config, truth), float)

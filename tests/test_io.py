@@ -10,8 +10,8 @@ from conftest import T_PAPER, paper_rotation
 from typer.testing import CliRunner
 
 import jaxpose as jp
-from jaxpose.cli import app
-from jaxpose.io import FORMATS
+from jaxpose._cli import app
+from jaxpose._io import FORMATS
 
 
 @pytest.mark.parametrize("suffix", FORMATS)

@@ -5,7 +5,7 @@ import jaxlie
 import numpy as np
 
 import jaxpose as jp
-from jaxpose.model_fit import box_distance, fit_model
+from jaxpose.evaluation.model_fit import box_distance, fit_model
 
 
 def test_box_distance_is_the_exact_signed_distance():

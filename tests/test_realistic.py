@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose import neighbours, realistic, shapes, targets
-from jaxpose.problem import bucket, sized_config
+from jaxpose import _neighbours as neighbours
+from jaxpose import targets
+from jaxpose._problem import bucket, sized_config
+from jaxpose.evaluation import realistic
+from jaxpose.sim import _shapes as shapes
 
 
 def test_buckets_are_few_and_cover_the_count():
@@ -109,7 +112,7 @@ def test_every_built_in_target_is_accepted_at_2_4_and_7_m(name):
         config = sized_config(prev, curr, jp.Config())
         problem = jp.Problem.build(prev, curr, config)  # raises on any unusable pair
         assert int(problem.status) == 0
-        assert config.max_points >= int(curr.num_valid) and config.grid_cells >= 32
+        assert config.capacities.max_points >= int(curr.num_valid) and config.capacities.grid_cells >= 32
 
 
 def test_a_mesh_4_m_across_is_accepted_and_estimated():
@@ -127,5 +130,5 @@ def test_a_mesh_4_m_across_is_accepted_and_estimated():
 
 def test_jit_users_size_a_config_from_the_camera_and_extent():
     config = jp.Config().sized_for(jp.Camera.camcube2(), extent=5.0)
-    assert config.grid_cells >= (1 + 2 * 0.2) * 5.0 / 0.026
-    assert config.max_points <= 204 * 204 and config.max_cells >= 2 * math.pi * 5.0 / 0.026
+    assert config.capacities.grid_cells >= (1 + 2 * 0.2) * 5.0 / 0.026
+    assert config.capacities.max_points <= 204 * 204 and config.capacities.max_cells >= 2 * math.pi * 5.0 / 0.026

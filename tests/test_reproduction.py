@@ -6,8 +6,8 @@ import csv
 import numpy as np
 from typer.testing import CliRunner
 
-from jaxpose.cli import app
-from jaxpose.reproduction import PAPER_TABLE3, PAPER_TABLES, paper_truth_angles, relative_errors
+from jaxpose._cli import app
+from jaxpose.evaluation.reproduction import PAPER_TABLE3, PAPER_TABLES, paper_truth_angles, relative_errors
 
 
 def test_relative_errors_recompute_the_papers_table3_from_its_tables_1_and_2():

@@ -12,7 +12,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from jaxpose.scale import estimate_sharded
+from jaxpose._scale import estimate_sharded
 
 PROBLEMS = textwrap.dedent(
     """
@@ -20,7 +20,11 @@ PROBLEMS = textwrap.dedent(
     import jaxpose as jp
 
     def make_batch():
-        config = jp.Config.fast(max_points=512, population=8, generations=6, local_steps=10)
+        config = jp.Config.fast(
+            search=jp.GlobalSearch(population=8, generations=6),
+            refine=jp.Refine(max_steps=10),
+            capacities=jp.Capacities(max_points=512),
+        )
         rng = np.random.default_rng(0)
         base = rng.uniform(-1, 1, (400, 3)) * [0.4, 0.25, 0.1] + [0, 0, 5]
         problems = []
@@ -39,7 +43,7 @@ SCRIPT = (
     import jax, jax.numpy as jnp, numpy as np
     jax.config.update("jax_enable_x64", True)
     import jaxpose as jp
-    from jaxpose.scale import batch_mesh, estimate_sharded
+    from jaxpose._scale import batch_mesh, estimate_sharded
     assert len(jax.devices()) == 4, jax.devices()
     """
     )
@@ -75,7 +79,7 @@ TWO_HOSTS = (
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.distributed.initialize(f"localhost:{sys.argv[2]}", num_processes=2, process_id=int(sys.argv[1]))
     assert jax.process_count() == 2 and len(jax.devices()) == 2
-    from jaxpose.scale import estimate_sharded
+    from jaxpose._scale import estimate_sharded
     """
     )
     + PROBLEMS

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose.scenarios import paper_pose
-from jaxpose.sequence import Tumble, simulate_sequence, tumble_poses
-from jaxpose.track import (
+from jaxpose.sim import Tumble, paper_pose, simulate_sequence, tumble_poses
+from jaxpose.tracking._track import (
     FILTER_BAD_MEASUREMENT,
     FILTER_NO_ESTIMATE,
     FILTER_UPDATED,
@@ -142,7 +141,9 @@ def test_tracking_a_simulated_tumble_converges():
     # and tracking configs over 10 s: 0.03–0.08°/s, experiments/tumble_tracking.py).
     dt = 0.08
     seq = simulate_sequence(jp.Camera.camcube2(), jp.targets.n5(), Tumble.n5(4.5), 2.0, 1 / dt)
-    result = jax.jit(lambda c: track(c, dt, jp.Config.fast(max_points=5120), jax.random.key(0), 5))(seq.clouds)
+    result = jax.jit(
+        lambda c: track(c, dt, jp.Config.fast(capacities=jp.Capacities(max_points=5120)), jax.random.key(0), 5)
+    )(seq.clouds)
     R = np.asarray(seq.rotations)
     true_rate = np.asarray(jaxlie.SO3.from_matrix(R[-1] @ R[-2].T).log()) / dt
     error = np.degrees(np.linalg.norm(np.asarray(result.rate) - true_rate, axis=1))

@@ -1,0 +1,595 @@
+"""Configuration of the method: one object per concern, gathered in a `Config`.
+
+The sections follow the data flow: [`Patterns`][jaxpose.Patterns] (how a cloud becomes cell
+patterns), [`Capacities`][jaxpose.Capacities] (the static array sizes, sized from the data
+when left at None), [`GlobalSearch`][jaxpose.GlobalSearch] (the evosax CMA-ES over the
+search box), [`Refine`][jaxpose.Refine] (an optimistix minimiser on the soft objective),
+[`FineStage`][jaxpose.FineStage] (point-to-plane least squares) and
+[`Thresholds`][jaxpose.Thresholds] (what counts as a result, what counts as input). A stage
+set to None does not run. Lengths in metres, angles in radians.
+
+Presets are named constructors that differ from the default: [`Config.paper`][jaxpose.Config.paper],
+[`Config.fast`][jaxpose.Config.fast], [`Config.wide`][jaxpose.Config.wide] and
+[`Config.tracking`][jaxpose.Config.tracking].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from typing import Literal
+
+import equinox as eqx
+import optimistix as optx
+from jaxtyping import ArrayLike, Float
+
+Scalar = Float[ArrayLike, ""]
+"""A setting that is a number: a Python float, or a 0-d array (traced under `jax.vmap` over
+configs)."""
+
+
+def _check_range(owner: str, name: str, value, lo: float, hi: float, closed_low: bool = False) -> None:
+    if not isinstance(value, int | float):
+        return  # a traced value: checked by the caller's status, not here
+    ok = (lo <= value <= hi) if closed_low else (lo < value <= hi)
+    if not ok:
+        bracket = "[" if closed_low else "("
+        raise ValueError(f"{owner}.{name} must be in {bracket}{lo:g}, {hi:g}], got {value!r}.")
+
+
+class Patterns(eqx.Module):
+    """How a cloud becomes cell patterns (DECISIONS.md "Patterns and grid"), and the soft
+    objective's kernels.
+
+    - `d`: selection half-width and cell size, metres (paper: 0.026).
+    - `extension`: grid extension on each side as a fraction of the previous pattern's
+      extent in cells (paper: 0.2).
+    - `slices`: K parallel slices per axis, offsets (k − (K−1)/2)·2d, k = 0…K−1 (static;
+      K = 1 is the paper's three planes).
+    - `bin_width`: width w of the soft cell kernel, in cells, 0 < w ≤ 1 (→ 0: hard cells).
+    - `select_width`: width of the soft selection edge, as a fraction of d (→ 0: hard slab).
+    """
+
+    d: Scalar = 0.026
+    extension: Scalar = 0.2
+    slices: int = eqx.field(static=True, default=1)
+    bin_width: Scalar = 1.0
+    select_width: Scalar = 0.5
+
+    def __check_init__(self):
+        _check_range("Patterns", "d", self.d, 0.0, math.inf)
+        _check_range("Patterns", "extension", self.extension, 0.0, math.inf, closed_low=True)
+        _check_range("Patterns", "bin_width", self.bin_width, 0.0, 1.0)
+        _check_range("Patterns", "select_width", self.select_width, 0.0, math.inf)
+        if self.slices < 1:
+            raise ValueError(f"Patterns.slices must be ≥ 1, got {self.slices!r}.")
+
+    @property
+    def num_planes(self) -> int:
+        return 3 * self.slices
+
+    def planes(self) -> tuple[tuple[int, float], ...]:
+        """(normal axis j, offset in units of d) of every cutting plane, plane 1 first."""
+        K = self.slices
+        return tuple((j, 2.0 * (k - (K - 1) / 2)) for j in range(3) for k in range(K))
+
+
+class Capacities(eqx.Module):
+    """The static array sizes of a problem. `None`, the default for each, sizes it from the
+    clouds at the Python boundary (`sized_config`: the counts and the previous patterns,
+    rounded up to a few buckets so that a stream of frames reuses one compiled program).
+    Under `jax.jit` a capacity left at None becomes the cloud's row count for the points and
+    `JIT_GRID_CELLS` / `JIT_MAX_CELLS` for the patterns; size a config for jitted code with
+    [`Config.sized_for`][jaxpose.Config.sized_for] instead. A pattern or cloud that overflows
+    a capacity under jit is reported in the problem's status, never silently used.
+
+    - `grid_cells`: capacity C of each plane's grid along each axis.
+    - `max_points`: the current cloud's valid points; fewer slots score faster.
+    - `max_prev_points`: the previous cloud's valid points. The previous points are compacted
+      to it once; passes over them are then shorter than over the whole frame.
+    - `max_cells`: the filled cells of one previous pattern.
+    """
+
+    grid_cells: int | None = eqx.field(static=True, default=None)
+    max_points: int | None = eqx.field(static=True, default=None)
+    max_prev_points: int | None = eqx.field(static=True, default=None)
+    max_cells: int | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        for name in ("grid_cells", "max_points", "max_prev_points", "max_cells"):
+            value = getattr(self, name)
+            if value is not None and value < 3:
+                raise ValueError(f"Capacities.{name} must be ≥ 3 or None, got {value!r}.")
+
+    def filled(self, **sizes: int) -> Capacities:
+        """These capacities with each one left at None set from `sizes`; set ones are kept."""
+        return dataclasses.replace(self, **{k: v for k, v in sizes.items() if getattr(self, k) is None})
+
+
+class GlobalSearch(eqx.Module):
+    """The global stage: evosax's CMA-ES over a box around no motion, on a coarse problem.
+
+    - `objective`: "hard" (the paper's) or "soft", what CMA-ES maximises (static).
+    - `coarse_factor`: the search scores a second, coarse problem built with cells of
+      `coarse_factor`·d (selection half-width too) from `coarse_points` current points
+      thinned evenly (static; 1 = search on the full problem, as the paper). An
+      evaluation's work scales with the current points scored (≈ 4 800 on the paper's N5
+      frames against 512) and the grid (3 × 130² cells against 3 × 47²), and the coarse
+      problem's wider cells widen each basin, so a smaller CMA-ES finds it. The refine and
+      the fine stage then work on the full problem.
+    - `coarse_points`: current points of the coarse problem (static).
+    - `population`, `generations`: CMA-ES size (static).
+    - `angle_box`, `shift_box`: half-widths of the search box for each angle (radians) and
+      each translation component (metres); paper: 20° and 0.10 m.
+    - `recentre`: how many more searches may run, each centred on the previous best, while
+      that best lies at the edge of its box (static; 0 = one search, as the paper). The
+      result is reported as at the box edge if the last search still ends there. Under
+      `jax.vmap` a batch runs as many searches as its neediest pair (one `lax.while_loop`).
+    - `restarts`: how many more independent searches (each with its own re-centring) may run
+      while the best score is below `restart_below`; the best one is kept (static).
+    - `restart_below`: the objective's value (0–1) at or above which a search is trusted and
+      no restart runs.
+    """
+
+    objective: Literal["hard", "soft"] = eqx.field(static=True, default="soft")
+    coarse_factor: int = eqx.field(static=True, default=3)
+    coarse_points: int = eqx.field(static=True, default=512)
+    population: int = eqx.field(static=True, default=16)
+    generations: int = eqx.field(static=True, default=16)
+    angle_box: Scalar = math.radians(20.0)
+    shift_box: Scalar = 0.10
+    recentre: int = eqx.field(static=True, default=2)
+    restarts: int = eqx.field(static=True, default=0)
+    restart_below: Scalar = 0.8
+
+    def __check_init__(self):
+        if self.objective not in ("hard", "soft"):
+            raise ValueError(f"GlobalSearch.objective must be 'hard' or 'soft', got {self.objective!r}.")
+        if self.coarse_factor < 1 or self.coarse_points < 10:
+            raise ValueError(
+                f"GlobalSearch.coarse_factor must be ≥ 1 and coarse_points ≥ 10, "
+                f"got {self.coarse_factor!r}, {self.coarse_points!r}."
+            )
+        if self.population < 2 or self.generations < 1:
+            raise ValueError(
+                f"GlobalSearch needs population ≥ 2 and generations ≥ 1, got {self.population!r}, {self.generations!r}."
+            )
+        if self.recentre < 0 or self.restarts < 0:
+            raise ValueError(
+                f"GlobalSearch.recentre and restarts must be ≥ 0, got {self.recentre!r}, {self.restarts!r}."
+            )
+        _check_range("GlobalSearch", "angle_box", self.angle_box, 0.0, math.pi)
+        _check_range("GlobalSearch", "shift_box", self.shift_box, 0.0, math.inf)
+        _check_range("GlobalSearch", "restart_below", self.restart_below, 0.0, 1.0, closed_low=True)
+
+
+REFINE_TOL = 3e-4
+"""The default refine's rtol = atol, in the solver's units of 1° and 1 cm: it stops BFGS within
+about 0.006° of a resting point; at 1e-5 the kinks of the neighbourhood max kept it
+zig-zagging to the step limit on half the paper's pairs with the same error
+(`experiments/local_tolerance.py`)."""
+
+
+class Refine(eqx.Module):
+    """The local stage: an optimistix minimiser of the negated soft objective, from the
+    global search's best, in coordinates of 1° and 1 cm (so `solver`'s rtol and atol are in
+    those units).
+
+    - `solver`: any `optx.AbstractMinimiser` (default BFGS with rtol = atol = `REFINE_TOL`;
+      `optx.NelderMead` works too, with a larger step limit).
+    - `max_steps`: its step limit (static).
+    """
+
+    solver: optx.AbstractMinimiser = optx.BFGS(rtol=REFINE_TOL, atol=REFINE_TOL)
+    max_steps: int = eqx.field(static=True, default=8)
+
+    def __check_init__(self):
+        if self.max_steps < 0:
+            raise ValueError(f"Refine.max_steps must be ≥ 0, got {self.max_steps!r}.")
+
+
+class FineStage(eqx.Module):
+    """The fine stage (ours, `jaxpose._fine`): point-to-plane least squares (optimistix
+    Levenberg–Marquardt, match-then-solve rounds) of the current points against planes fitted
+    to the previous points, over the visible surface (the default) or near the cutting planes.
+
+    - `prev_slab`, `curr_slab`: half-widths of the previous and current slabs around each
+      cutting plane, in units of d (the previous one wider so that every current point finds
+      its neighbours); inf (the default): the whole visible surface. On the realistic
+      benchmark's 28 pairs of `make_cases(1)` (every target, σ 0–2 cm) the whole surface with
+      4096 points a side and centroid anchors found 24 against 18 with 896 near-plane points
+      (slabs of 3d / 2d, point anchors), with no false success against 2
+      (`experiments/realistic_settings.py`).
+    - `inlier`: current points farther than this from every previous point are left out
+      (metres): surface seen in only one cloud.
+    - `planar_fraction`: fraction of the previous points kept, the most planar ones
+      (smallest / middle scatter eigenvalue of the neighbourhood): edges and corners go.
+    - `guard`: the fine stage's result is dropped, and the refine's kept, when its hard score
+      is lower than the refine's by more than this (0–1; 1 = never dropped): on random views
+      the fit can slide along a face while the hard score falls from ≈ 0.9 to 0.6.
+    - `from_rest`: also run from p = 0 (no motion) and keep whichever result explains more of
+      the current cloud (`better_fine`): over the small motions between frames the surface
+      fit's own basin often holds the truth where the pattern search settled a few degrees off
+      (static).
+    - `points`: capacity of each side (static); more points are thinned evenly.
+    - `neighbours`: neighbours of a normal fit (static).
+    - `anchor`: "centroid" or "point" (static): each previous point's plane goes through its
+      neighbourhood's centroid or through the point itself. With 1 cm range noise the point
+      anchor biases registrations in proportion to the motion (the nearest match favours
+      points that noise moved towards the current point) and the centroid removes most of it
+      (`experiments/fine_anchor.py`). Noise-free, the plane of a neighbourhood that spans an
+      edge misses the surface by micrometres to millimetres.
+    - `rounds`: most match-then-solve rounds (static).
+    - `steps`, `tol`: Levenberg–Marquardt's step limit per round and its rtol = atol, in units
+      of 1° and 1 cm (static). At 1e-4, on the paper's pairs × 3 keys every result is within
+      0.00004° / 0.00004 cm of the truth, as at 1e-6, with a median of 14.5 steps against 35
+      (`experiments/local_tolerance.py fine`).
+    """
+
+    prev_slab: Scalar = math.inf
+    curr_slab: Scalar = math.inf
+    inlier: Scalar = 0.03
+    planar_fraction: Scalar = 0.7
+    guard: Scalar = 0.05
+    from_rest: bool = eqx.field(static=True, default=True)
+    points: int = eqx.field(static=True, default=4096)
+    neighbours: int = eqx.field(static=True, default=20)
+    anchor: Literal["point", "centroid"] = eqx.field(static=True, default="centroid")
+    rounds: int = eqx.field(static=True, default=20)
+    steps: int = eqx.field(static=True, default=20)
+    tol: float = eqx.field(static=True, default=1e-4)
+
+    def __check_init__(self):
+        if self.anchor not in ("centroid", "point"):
+            raise ValueError(f"FineStage.anchor must be 'centroid' or 'point', got {self.anchor!r}.")
+        if min(self.points, self.neighbours - 2, self.steps, self.rounds) < 1 or not self.tol > 0:
+            raise ValueError("FineStage needs points ≥ 1, neighbours ≥ 3, steps ≥ 1, rounds ≥ 1 and tol > 0.")
+        for name in ("prev_slab", "curr_slab", "inlier"):
+            _check_range("FineStage", name, getattr(self, name), 0.0, math.inf)
+        _check_range("FineStage", "planar_fraction", self.planar_fraction, 0.0, 1.0)
+        _check_range("FineStage", "guard", self.guard, 0.0, 1.0, closed_low=True)
+
+
+class Thresholds(eqx.Module):
+    """What counts as a result and what counts as input.
+
+    - `min_score`: a result whose hard score is below this is reported as low-score (0–1).
+      On the 100-pair capture set the results ≥ 5° off that reported success had hard scores
+      0.54–0.73 (8 of 11 below 0.7) and the correct ones 0.65–0.97 (2 of 74 below 0.7); with
+      2 cm range noise correct results scored 0.75–0.79.
+    - `max_range`: clouds with a point farther than this from the camera (metres) are refused
+      at the Python boundary (wrong units or garbage, not lidar returns).
+    """
+
+    min_score: Scalar = 0.7
+    max_range: Scalar = 1000.0
+
+    def __check_init__(self):
+        _check_range("Thresholds", "min_score", self.min_score, 0.0, 1.0, closed_low=True)
+        _check_range("Thresholds", "max_range", self.max_range, 0.0, math.inf)
+
+
+_LEGACY = {
+    **{name: ("patterns", name) for name in ("d", "extension", "slices", "bin_width", "select_width")},
+    **{name: ("capacities", name) for name in ("grid_cells", "max_points", "max_prev_points", "max_cells")},
+    "global_objective": ("search", "objective"),
+    "coarse": ("search", "coarse_factor"),
+    **{
+        name: ("search", name)
+        for name in (
+            "coarse_points",
+            "population",
+            "generations",
+            "angle_box",
+            "shift_box",
+            "recentre",
+            "restarts",
+            "restart_below",
+        )
+    },
+    **{
+        f"fine_{name}": ("fine", name)
+        for name in (
+            "prev_slab",
+            "curr_slab",
+            "inlier",
+            "planar_fraction",
+            "guard",
+            "from_rest",
+            "points",
+            "neighbours",
+            "anchor",
+            "rounds",
+            "steps",
+            "tol",
+        )
+    },
+    "min_score": ("thresholds", "min_score"),
+    "max_range": ("thresholds", "max_range"),
+}
+"""The flat keyword names of the single-object configuration, and the section field each
+one now is (deprecated aliases; `local*` and a string `fine` are translated apart)."""
+
+_DEFAULT = object()
+
+
+class Config(eqx.Module):
+    """Settings of the plane-pattern method: one object per stage, in the order of the data
+    flow. `Config()` is the default; a stage set to None (`refine`, `fine`) does not run.
+
+    - `patterns`: [`Patterns`][jaxpose.Patterns].
+    - `capacities`: [`Capacities`][jaxpose.Capacities].
+    - `search`: [`GlobalSearch`][jaxpose.GlobalSearch].
+    - `refine`: [`Refine`][jaxpose.Refine] or None (the paper's method has none).
+    - `fine`: [`FineStage`][jaxpose.FineStage] or None.
+    - `thresholds`: [`Thresholds`][jaxpose.Thresholds].
+
+    Change one setting with `dataclasses.replace`, e.g.
+    `dataclasses.replace(config, fine=dataclasses.replace(config.fine, points=8192))`, or
+    build the section: `jp.Config(capacities=jp.Capacities(max_points=6144))`.
+
+    The flat keywords of the single-object configuration (`max_points=…`, `fine_points=…`,
+    `local="nelder_mead"`, `fine="none"`, …) and reading them as attributes are deprecated
+    aliases: they still work and warn.
+    """
+
+    patterns: Patterns
+    capacities: Capacities
+    search: GlobalSearch
+    refine: Refine | None
+    fine: FineStage | None
+    thresholds: Thresholds
+
+    def __init__(
+        self,
+        patterns: Patterns | None = None,
+        capacities: Capacities | None = None,
+        search: GlobalSearch | None = None,
+        refine=_DEFAULT,
+        fine=_DEFAULT,
+        thresholds: Thresholds | None = None,
+        **legacy,
+    ):
+        sections = {
+            "patterns": Patterns() if patterns is None else patterns,
+            "capacities": Capacities() if capacities is None else capacities,
+            "search": GlobalSearch() if search is None else search,
+            "refine": Refine() if refine is _DEFAULT else refine,
+            "fine": FineStage() if fine is _DEFAULT else fine,
+            "thresholds": Thresholds() if thresholds is None else thresholds,
+        }
+        if isinstance(sections["fine"], str):  # the flat `fine="none" | "point_to_plane"`
+            legacy["fine"] = sections.pop("fine")
+            sections["fine"] = FineStage()
+        if legacy:
+            sections = _apply_legacy(sections, legacy)
+        for name, value in sections.items():
+            setattr(self, name, value)
+
+    def __getattr__(self, name: str):
+        if name in _LEGACY or name in ("local", "local_steps", "local_tol"):
+            warnings.warn(
+                f"Config.{name} is deprecated: read it from the config's sections.", DeprecationWarning, stacklevel=2
+            )
+            return _legacy_value(self, name)
+        raise AttributeError(f"'Config' object has no attribute {name!r}")
+
+    @property
+    def num_planes(self) -> int:
+        return self.patterns.num_planes
+
+    def with_capacities(self, **sizes: int) -> Config:
+        """This config with each capacity left at None set from `sizes` (names of
+        [`Capacities`][jaxpose.Capacities]); capacities already set are kept."""
+        return dataclasses.replace(self, capacities=self.capacities.filled(**sizes))
+
+    def with_jit_capacities(self, prev_rows: int, curr_rows: int) -> Config:
+        """This config with each capacity left at None set for traced clouds of `prev_rows` and
+        `curr_rows` rows: the row counts for the points, `JIT_GRID_CELLS` and `JIT_MAX_CELLS`."""
+        return self.with_capacities(
+            max_prev_points=prev_rows, max_points=curr_rows, grid_cells=JIT_GRID_CELLS, max_cells=JIT_MAX_CELLS
+        )
+
+    def sized_for(self, camera, extent: float, distance: float | None = None) -> Config:
+        """This config with its capacities sized for a target of largest extent `extent`
+        (metres) seen by `camera` at `distance` (metres; default the nearest the target fits
+        in the field of view, never below `camera.range_min`): for code that calls
+        `estimate` under `jax.jit`, where the clouds cannot size it.
+
+        - points: the pixels the target's bounding sphere can cover at that distance (at most
+          the camera's frame);
+        - `grid_cells`: (1 + 2·extension)·extent/d + 3 cells plus the margin of `sized_config`;
+        - `max_cells`: 4π·extent/d, twice the cells along the outline of a slab through a
+          convex body of that size, at least `JIT_MAX_CELLS` / 4.
+
+        Each is rounded up by `bucket`; capacities already set are kept."""
+        from ._problem import GRID_MARGIN, bucket
+
+        tan_half = min(float(camera.tan_half_x), float(camera.tan_half_y))
+        fit = extent / 2 / tan_half
+        distance = max(fit, float(camera.range_min)) if distance is None else distance
+        radius = extent / 2
+        half_angle = math.asin(min(1.0, radius / max(distance, radius)))
+        share = min(
+            1.0, (math.tan(half_angle) / float(camera.tan_half_x)) * (math.tan(half_angle) / float(camera.tan_half_y))
+        )
+        frame = camera.width * camera.height
+        pixels = min(bucket(math.ceil(share * frame) + 1, 512), frame)  # never more than a frame
+        cells = (1 + 2 * self.patterns.extension) * extent / self.patterns.d + 3 + GRID_MARGIN
+        max_cells = bucket(max(math.ceil(4 * math.pi * extent / self.patterns.d), JIT_MAX_CELLS // 4), 64)
+        return self.with_capacities(
+            max_points=pixels, max_prev_points=pixels, grid_cells=bucket(math.ceil(cells), 32), max_cells=max_cells
+        )
+
+    @property
+    def coarse_config(self) -> Config:
+        """The settings of the coarse problem of the search (see `GlobalSearch.coarse_factor`):
+        cells and selection of `coarse_factor`·d, a grid of ⌈C / coarse_factor⌉ + 2 cells,
+        `coarse_points` current points, no fine stage."""
+        factor = self.search.coarse_factor
+        return Config(
+            patterns=dataclasses.replace(self.patterns, d=self.patterns.d * factor),
+            capacities=dataclasses.replace(
+                self.capacities,
+                grid_cells=-(-self.capacities.grid_cells // factor) + 2,
+                max_points=self.search.coarse_points,
+            ),
+            search=dataclasses.replace(self.search, coarse_factor=1),
+            refine=self.refine,
+            fine=None,
+            thresholds=self.thresholds,
+        )
+
+    @classmethod
+    def paper(cls, **changes) -> Config:
+        """The paper's setting: three planes, d = 0.026 m, the hard objective, one CMA-ES
+        search (48 × 60) in the ±20° / ±0.10 m box on the full patterns, no refine and no fine
+        stage. `changes`: sections to replace."""
+        search = GlobalSearch(objective="hard", coarse_factor=1, population=48, generations=60, recentre=0)
+        return cls(**{"search": search, "refine": None, "fine": None, **changes})
+
+    @classmethod
+    def fast(cls, **changes) -> Config:
+        """The default's search with the fine stage on the points near the cutting planes (896
+        a side, slabs of 3d / 2d, planes through the points): several times cheaper than the
+        whole surface, and exact on noise-free pairs of flat faces; less accurate under range
+        noise ([`FineStage`][jaxpose.FineStage]). The tests run it on the paper's pairs."""
+        fine = FineStage(prev_slab=3.0, curr_slab=2.0, points=896, anchor="point")
+        return cls(**{"fine": fine, **changes})
+
+    @classmethod
+    def wide(cls, **changes) -> Config:
+        """Capture, for a first estimate with no prior (`jaxpose compare --set capture`): a
+        ±90° / ±0.30 m box searched on the full patterns by a larger CMA-ES (64 × 60), up to 7
+        restarts while the best soft score is below 0.8, three slices per axis (9 planes), up
+        to 100 BFGS steps and a fine stage near the planes (2048 points a side).
+
+        Why 9 planes: over ±90° the three-plane objective has wrong maxima (a ≈ 90° turn that
+        lines up flat faces, or a few degrees' slide along a symmetric part) that can score
+        above the truth; nine planes rank some of them below it, so restarts leave them. With
+        both, the capture set went from 84 to 95 found of 100. 9 planes score three times the
+        patterns per evaluation."""
+        search = GlobalSearch(
+            coarse_factor=1,
+            population=64,
+            generations=60,
+            angle_box=math.radians(90.0),
+            shift_box=0.30,
+            restarts=7,
+        )
+        base = {**_full_search_sections(), "patterns": Patterns(slices=3), "search": search}
+        return cls(**{**base, **changes})
+
+    @classmethod
+    def tracking(cls, **changes) -> Config:
+        """Frame-to-frame registration of noisy clouds (`jaxpose.track`): the search on the full
+        patterns (CMA-ES 32 × 40, up to 100 BFGS steps) and the fine stage over the whole
+        cloud, 6144 points a side, planes through the neighbourhood centroids.
+
+        Why: with 1 cm range noise the fine stage's error falls as more surface is fitted. On
+        the 10 s N5 tumbles of `experiments/tumble_tracking.py` (4.5 °/s, 5.5 m) 247–250 of
+        251 frames of six seeds succeeded, with registration errors of median 0.043–0.062°.
+        It is slower per pair than the default (a neighbour search over 6144 points)."""
+        fine = FineStage(points=6144, guard=1.0, tol=1e-6)
+        return cls(**{**_full_search_sections(), "fine": fine, **changes})
+
+    @classmethod
+    def accurate(cls, **changes) -> Config:
+        """Deprecated: the default, `Config()`."""
+        warnings.warn("Config.accurate() is the default: use Config().", DeprecationWarning, stacklevel=2)
+        return cls(**changes)
+
+    @classmethod
+    def thorough(cls, **changes) -> Config:
+        """Deprecated: the search on the full patterns (CMA-ES 32 × 40, up to 100 BFGS steps)
+        and the fine stage near the planes with 2048 points a side, no guard; kept for the
+        experiments whose committed figures were measured with it."""
+        warnings.warn("Config.thorough() is deprecated; build the sections you need.", DeprecationWarning, stacklevel=2)
+        return cls(**{**_full_search_sections(), **changes})
+
+
+def _full_search_sections() -> dict:
+    """The sections shared by `wide`, `tracking` and the deprecated `thorough`: the search on
+    the full patterns (CMA-ES 32 × 40), up to 100 BFGS steps, and a fine stage near the
+    planes (2048 points a side, slabs of 3d / 2d, planes through the points, no guard,
+    tolerance 1e-6)."""
+    return {
+        "search": GlobalSearch(coarse_factor=1, population=32, generations=40),
+        "refine": Refine(max_steps=100),
+        "fine": FineStage(prev_slab=3.0, curr_slab=2.0, points=2048, anchor="point", guard=1.0, tol=1e-6),
+    }
+
+
+def _apply_legacy(sections: dict, legacy: dict) -> dict:
+    """Apply the deprecated flat keywords to the sections (see `_LEGACY`)."""
+    unknown = set(legacy) - set(_LEGACY) - {"local", "local_steps", "local_tol", "fine"}
+    if unknown:
+        raise TypeError(f"Config got unexpected keyword arguments {sorted(unknown)}.")
+    warnings.warn(
+        f"flat Config keywords {sorted(legacy)} are deprecated: pass the sections "
+        "(Patterns, Capacities, GlobalSearch, Refine, FineStage, Thresholds).",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    legacy = dict(legacy)
+    fine_mode = legacy.pop("fine", None)
+    if fine_mode not in (None, "none", "point_to_plane"):
+        raise ValueError(f"fine must be 'point_to_plane' or 'none', got {fine_mode!r}.")
+    grouped: dict[str, dict] = {}
+    for name, value in legacy.items():
+        if name in _LEGACY:
+            section, field = _LEGACY[name]
+            grouped.setdefault(section, {})[field] = value
+    for section, changes in grouped.items():
+        if section == "fine" and sections["fine"] is None:
+            sections["fine"] = FineStage()
+        sections[section] = dataclasses.replace(sections[section], **changes)
+    if fine_mode == "none":
+        sections["fine"] = None
+    elif fine_mode == "point_to_plane" and sections["fine"] is None:
+        sections["fine"] = FineStage()
+    if {"local", "local_steps", "local_tol"} & set(legacy):
+        sections["refine"] = _legacy_refine(sections["refine"], legacy)
+    return sections
+
+
+def _legacy_refine(refine: Refine | None, legacy: dict) -> Refine | None:
+    kind = legacy.get("local", "none" if refine is None else "keep")
+    if kind == "none":
+        return None
+    if kind not in ("bfgs", "nelder_mead", "keep"):
+        raise ValueError(f"local must be 'bfgs', 'nelder_mead' or 'none', got {kind!r}.")
+    base = Refine() if refine is None else refine
+    tol = legacy.get("local_tol", base.solver.rtol)
+    if kind == "nelder_mead":
+        solver = optx.NelderMead(rtol=tol, atol=tol)
+    elif kind == "bfgs" or "local_tol" in legacy:
+        solver = type(base.solver)(rtol=tol, atol=tol) if kind == "keep" else optx.BFGS(rtol=tol, atol=tol)
+    else:
+        solver = base.solver
+    return Refine(solver, legacy.get("local_steps", base.max_steps))
+
+
+def _legacy_value(config: Config, name: str):
+    if name == "local":
+        if config.refine is None:
+            return "none"
+        return "nelder_mead" if isinstance(config.refine.solver, optx.NelderMead) else "bfgs"
+    if name == "local_steps":
+        return 0 if config.refine is None else config.refine.max_steps
+    if name == "local_tol":
+        return REFINE_TOL if config.refine is None else config.refine.solver.rtol
+    section, field = _LEGACY[name]
+    part = getattr(config, section)
+    if part is None:
+        return getattr(FineStage(), field)
+    return getattr(part, field)
+
+
+JIT_GRID_CELLS = 256
+"""`grid_cells` under jit when the config leaves it at None: with the default d and
+extension, patterns up to about 4.7 m across."""
+
+JIT_MAX_CELLS = 2048
+"""`max_cells` under jit when the config leaves it at None."""

@@ -1,0 +1,226 @@
+"""`estimate`: the displacement between two clouds, end to end, with a status.
+
+Problem → global search (CMA-ES) → local refine (soft objective) → fine stage (point-to-plane
+least squares on the near-plane points, `jaxpose.fine`) → hard score reported.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+
+from ._checks import is_concrete
+from ._cloud import Cloud
+from ._config import Config
+from ._fine import FineResult, fine_refine
+from ._frame import PlaneFrame
+from ._objective import hard_score, soft_score
+from ._poses import motion_from_displacement
+from ._problem import Problem, _build, check_range, grow_capacities, raise_for_codes, sized_config
+from ._programs import BoundedJit
+from ._search import GlobalResult, LocalResult, box_scale, local_refine, restarted_search
+
+
+class Status(eqx.Enumeration):
+    """Why an estimate is or is not a success: the `result` of an [`Estimate`][jaxpose.Estimate].
+    `Status[est.result]` gives the message (concrete results only); the item's integer code is
+    `Estimate.status`."""
+
+    success = "success"
+    not_converged = "the local refine or the fine stage did not converge"
+    low_score = "the best hard score is below Thresholds.min_score: the patterns do not match"
+    degenerate = "the problem is unusable (see Problem.status: frame, capacities, too few points)"
+    non_finite = "a non-finite value appeared"
+    at_box_edge = (
+        "the global search ended at the edge of its box (after GlobalSearch.recentre re-centred searches): "
+        "the motion may lie outside it; widen the box (Config.wide()) or give a prior"
+    )
+
+
+_NAMES = tuple(Status._name_to_item)
+SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE, AT_BOX_EDGE = (
+    _NAMES.index(name) for name in ("success", "not_converged", "low_score", "degenerate", "non_finite", "at_box_edge")
+)
+"""The integer codes of `Status`'s items (`Estimate.status`), for code that compares arrays."""
+STATUS_TEXT = dict(enumerate(Status._index_to_message))
+"""Code → message of each `Status` item."""
+STATUS_NAME = {code: name.replace("_", " ") for code, name in enumerate(_NAMES)}
+"""Code → short name of each `Status` item, for tables."""
+
+
+class Estimate(eqx.Module):
+    """Result of [`estimate`][jaxpose.estimate].
+
+    **Fields:**
+
+    - `params`: p = (θ, φ, ψ, x, y, z), radians and metres, frame ν relative to frame n.
+    - `rotation`, `translation`: the target motion in the camera frame, x ↦ R x + t, so
+      estimates can be chained.
+    - `frame`: the plane frame n of the previous cloud.
+    - `hard`, `soft`: the objectives at `params`.
+    - `result`: a [`Status`][jaxpose.Status] item; `Status[est.result]` is its message.
+    - `search`: the global stage's `GlobalResult` (best p and score before the refine, the
+      best score of each CMA-ES generation of the first search of the restart that gave the
+      result, evaluations, whether it ended at the box edge, re-centrings and restarts).
+    - `refine`: the local stage's `LocalResult` (its p, soft score, convergence and steps).
+    - `fine`: the fine stage's `FineResult` (p, convergence, Levenberg–Marquardt steps over
+      all rounds, inlier fraction and inlier RMS point-to-plane residual in metres), or None
+      when `Config.fine` is None.
+    - `fine_kept`: whether `params` is the fine stage's result (False: no fine stage, or its
+      hard score fell more than `FineStage.guard` below the refine's, which then stands).
+    """
+
+    params: Float[Array, "6"]
+    rotation: Float[Array, "3 3"]
+    translation: Float[Array, "3"]
+    frame: PlaneFrame
+    hard: Float[Array, ""]
+    soft: Float[Array, ""]
+    result: Status
+    search: GlobalResult
+    refine: LocalResult
+    fine: FineResult | None
+    fine_kept: Bool[Array, ""]
+
+    @property
+    def status(self) -> Int[Array, "*batch"]:
+        """The integer code of `result` (`SUCCESS` = 0; `STATUS_TEXT` / `STATUS_NAME`)."""
+        return jnp.asarray(self.result._value, jnp.int32)
+
+    @property
+    def success(self) -> Bool[Array, "*batch"]:
+        return self.result == Status.success
+
+    @property
+    def stats(self) -> dict[str, Int[Array, ""]]:
+        """The work done: objective evaluations of the global stage, refine steps, fine-stage
+        steps (all rounds; 0 without one), re-centred searches and restarts."""
+        return {
+            "evaluations": self.search.evaluations,
+            "refine_steps": self.refine.steps,
+            "fine_steps": jnp.asarray(0, jnp.int32) if self.fine is None else self.fine.steps,
+            "recentred": self.search.recentred,
+            "restarts": self.search.restarts,
+        }
+
+
+FINE_TIE = 0.01
+"""Inlier fractions closer than this count as equal when two fine-stage results are compared."""
+
+
+def better_fine(a, b):
+    """The fine-stage result that explains more of the current cloud: the larger inlier
+    fraction, or, within `FINE_TIE`, the smaller weighted RMS residual."""
+    pick_b = (b.inliers > a.inliers + FINE_TIE) | ((b.inliers >= a.inliers - FINE_TIE) & (b.rms < a.rms))
+    return jax.tree.map(lambda x, y: jnp.where(pick_b, y, x), a, b)
+
+
+def within_reach(p: Float[Array, "6"], config: Config) -> Bool[Array, ""]:
+    """Whether p (frame n, radians and metres) lies where the search can reach: within
+    (1 + `recentre`) box half-widths of p = 0. The fine stage's result is dropped outside it, so
+    that a slide along a free direction never carries the estimate out of the box."""
+    return jnp.all(jnp.abs(p) <= (1 + config.search.recentre) * box_scale(config).astype(p.dtype))
+
+
+@eqx.filter_jit
+def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Estimate:
+    """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
+    glob = restarted_search(problem, config, key)
+    loc = local_refine(problem, config, glob.params)
+    p, converged = loc.params, loc.converged
+    hard = hard_score(p, problem)
+    fine, fine_kept = None, jnp.asarray(False)
+    if config.fine is not None:
+        fine = fine_refine(problem, config, loc.params)
+        if config.fine.from_rest:
+            fine = better_fine(fine, fine_refine(problem, config, jnp.zeros_like(loc.params)))
+        # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
+        # free it can slide along it (tens of centimetres along a face on random views). Its
+        # result is kept unless the method's reference score drops by more than the guard;
+        # then the refine's result stands.
+        fine_hard = hard_score(fine.params, problem)
+        fine_kept = (fine_hard >= hard - config.fine.guard) & within_reach(fine.params, config)
+        # When kept, the fine stage's convergence is the one that counts (BFGS on the soft
+        # objective may stop on a kink short of its tolerance and not matter).
+        p = jnp.where(fine_kept, fine.params, p)
+        converged = jnp.where(fine_kept, fine.converged, converged)
+        hard = jnp.where(fine_kept, fine_hard, hard)
+    finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
+    # First matching condition wins: the order is the priority of the statuses.
+    conditions = [
+        (problem.status != 0, Status.degenerate),
+        (~finite, Status.non_finite),
+        (hard < config.thresholds.min_score, Status.low_score),
+        (glob.at_edge, Status.at_box_edge),
+        (~converged, Status.not_converged),
+    ]
+    result = Status.success
+    for condition, item in reversed(conditions):
+        result = Status.where(condition, item, result)
+    p = jnp.where(finite, p, jnp.zeros_like(p))
+    R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
+    return Estimate(
+        params=p,
+        rotation=R,
+        translation=t,
+        frame=problem.frame,
+        hard=jnp.where(finite, hard, 0.0),
+        soft=soft_score(p, problem),
+        result=result,
+        search=glob,
+        refine=loc,
+        fine=fine,
+        fine_kept=fine_kept,
+    )
+
+
+def estimate(prev: Cloud, curr: Cloud, config: Config | None = None, *, key: PRNGKeyArray) -> Estimate:
+    """Displacement of the target between the previous and the current cloud.
+
+    **Arguments:**
+
+    - `prev`, `curr`: the two [`jaxpose.Cloud`][]s, camera frame, metres.
+    - `config`: a [`jaxpose.Config`][] (default `Config()`).
+    - `key`: PRNG key of the global search; the same key gives the same result.
+
+    **Returns:**
+
+    An [`Estimate`][]. Pure; works under `jax.jit` and `jax.vmap` over pairs and keys. At the
+    Python boundary an unusable pair raises ValueError (see `Problem.build`); under jit it
+    comes back with result `Status.degenerate` and never as a success.
+    """
+    config = Config() if config is None else config
+    if not is_concrete(prev, curr):
+        return estimate_problem(Problem.build(prev, curr, config), config, key)
+    prev.check("previous cloud")
+    curr.check("current cloud")
+    check_range(prev, curr, config)
+    config = sized_config(prev, curr, config)
+    for _ in range(GROW_TRIES):
+        est, status, frame_status = _estimate_pair(prev, curr, config, key)
+        grown = grow_capacities(config, int(status))
+        if grown is None:
+            break
+        config = grown
+    raise_for_codes(int(status), int(frame_status))
+    return est
+
+
+GROW_TRIES = 4
+"""Compiled calls `estimate` may make at the Python boundary: a capacity that the sizing
+missed (a rounding at the coarse level) is grown and the pair run again."""
+
+
+def _build_and_estimate(prev: Cloud, curr: Cloud, config: Config, key: PRNGKeyArray):
+    problem = _build(prev, curr, config)
+    return estimate_problem(problem, config, key), problem.status, problem.frame.status
+
+
+_estimate_pair = BoundedJit(_build_and_estimate)
+"""Build, search, refine and fine stage as one compiled program per capacity bucket (the most
+recently used ones kept in memory, see `jaxpose._programs`)."""
+
+
+__all__ = ["STATUS_NAME", "STATUS_TEXT", "Estimate", "Status", "estimate", "estimate_problem"]

@@ -1,0 +1,367 @@
+"""Fine stage: point-to-plane least squares on the points near the cutting planes (ours).
+
+The pattern objectives compare cell occupancies, so their optimum is resolved to a fraction
+of a cell (d = 2.6 cm) and lands 0.1–0.6° from the truth on the paper's pairs. The fine stage
+keeps the method's data reduction — only points near the cutting planes take part — but
+measures how far each current point lies from the previous *surface*:
+
+- previous side (built once, in [`jaxpose.Problem.build`][]): the previous points within
+  `fine_prev_slab`·d of a cutting plane, in frame n, each with the normal of a plane fitted to
+  its `fine_neighbours` nearest such points; only the `fine_planar_fraction` most planar
+  neighbourhoods (smallest / middle scatter eigenvalue) keep their point, because at edges
+  and corners a normal is meaningless;
+- current side (chosen once, at the start p₀): the current points within `fine_curr_slab`·d
+  of a cutting plane of frame ν(p₀);
+- residual of current point i at p: nᵀ(qᵢ(p) − a), with qᵢ(p) its coordinates in frame ν
+  and (a, n) the nearest previous point and its normal — zero where the moved surfaces
+  coincide; with `FineStage.anchor` "centroid" the plane goes through the centroid of
+  a's neighbourhood instead of a (it averages the range noise; `Config.tracking()`).
+  Points farther than `fine_inlier` from every previous point (surface seen only in one
+  cloud) get weight 0.
+
+This is point-to-plane ICP (Chen & Medioni 1992) restricted to the near-plane points:
+rounds of nearest-neighbour matching, each followed by optimistix's Levenberg–Marquardt on
+the matched residuals. Its basin is a few degrees, so it follows the global search and the
+soft refine and never replaces them. Lengths in metres, angles in radians, frame n.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+from jaxtyping import Array, Bool, Float, Int
+
+from ._config import Config, FineStage
+from ._neighbours import VoxelGrid, k_nearest, nearest, spread_subset, voxel_grid, voxel_spacing
+from ._poses import PARAMETER_SCALE
+from ._rotations import into_moved_frame
+
+ROUND_TOL = 1e-3
+"""A round that moves p by less than this (units of 1° and 1 cm: 0.001°, 0.01 mm) ends the
+stage as converged. Far below the stage's accuracy; tighter, nearest-neighbour matches that
+flip between two equally near points kept some pairs cycling to the round limit."""
+
+RESIDUAL_UNIT = 1e-3
+"""Residuals are expressed in millimetres, so that LM's tolerances read in mm."""
+
+NEIGHBOUR_VOXEL = 2.0
+"""Voxel edge of the neighbour search, in sampling steps of the previous points (their median
+nearest-neighbour distance): a voxel holds about four points of a surface seen head-on."""
+
+NEIGHBOUR_SLOTS = 16
+"""Points read from each column of three voxels (`jaxpose.neighbours.candidates`)."""
+
+ROBUST_SCALE = 3.0
+"""Cauchy weights 1 / (1 + (r / c)²) with c = this × the round's robust residual scale
+(1.4826 × median |r| of the inliers), at least `ROBUST_FLOOR`: flying pixels, surface seen in
+one cloud only and mismatched edges weigh little, and the noise's own spread keeps weight."""
+
+POINT_WEIGHT = 0.01
+"""Weight of the point-to-point residuals beside the point-to-plane one (both in metres):
+where the visible faces leave a direction free (a slide along an edge or a face), the
+point-to-plane residuals are flat and the point-to-point ones, though coarser (they carry
+the sampling step), fix it; elsewhere the plane term dominates."""
+
+NOISE_FRACTION = 0.5
+"""A round also ends the stage as converged when it moves p by less than this fraction of the
+noise floor σ̂/√n (σ̂ the round's weighted RMS residual, n its inliers; in cm, compared with
+p in units of 1° and 1 cm): under range noise the matches keep changing by amounts the data
+cannot resolve, and "not converged" must mark an unreliable result, not a noisy pair.
+Noise-free, σ̂ ≈ 0 and `ROUND_TOL` decides."""
+
+SIGMA_FLOOR = 1e-4
+"""Smallest residual scale σ̂ of [`fine_covariance`][], metres: on noise-free views the
+residuals are round-off (≈ 1e-7 m in float32), and σ̂² (JᵀJ)⁻¹ at that scale is not positive
+definite in float32, so the tracker would refuse every noise-free measurement. 0.1 mm is
+below the accuracy any registration of these clouds reaches (the sampling step is ≈ 1 cm)."""
+
+ROBUST_FLOOR = 5e-4
+"""Smallest Cauchy scale c, metres: noise-free residuals do not shrink it to nothing."""
+
+
+class FineCloud(eqx.Module):
+    """Previous points near the cutting planes with their surface planes (frame n, metres).
+
+    - `points`: `(3, K)` the selected previous points, structure of arrays, zero padded.
+    - `normals`: `(3, K)` unit normals of the planar ones (zero elsewhere).
+    - `offsets`: `(K,)`, the plane of point k is {x : normals[:, k]ᵀ x = offsets[k]}; it goes
+      through the point, or through its neighbourhood's centroid (`FineStage.anchor`).
+    - `valid`: `(K,)` mask (selected and planar).
+    - `grid`: the voxel grid of the selected points (planar or not) that the matching
+      searches ([`jaxpose.neighbours`][]); its voxel is `NEIGHBOUR_VOXEL` sampling steps.
+    """
+
+    points: Float[Array, "3 K"]
+    normals: Float[Array, "3 K"]
+    offsets: Float[Array, " K"]
+    valid: Bool[Array, " K"]
+    grid: VoxelGrid
+
+
+class FineResult(eqx.Module):
+    """Result of [`fine_refine`][].
+
+    - `params`: p in frame n (radians, metres).
+    - `converged`: the last round moved p by at most `ROUND_TOL`, or by less than
+      `NOISE_FRACTION` of the noise floor (within `fine_rounds`).
+    - `steps`: LM steps taken, all rounds.
+    - `inliers`: fraction of the selected current points within `fine_inlier` of the
+      previous points, with the last round's matches (made where that round started, within
+      `ROUND_TOL` of `params` when converged); 0 when none was selected.
+    - `rms`: root mean square point-to-plane residual of those inliers at `params`, each
+      weighted by its Cauchy weight (the measure the stage minimises), metres.
+    - `used`: number of selected current points.
+    """
+
+    params: Float[Array, "6"]
+    converged: Bool[Array, ""]
+    steps: Int[Array, ""]
+    inliers: Float[Array, ""]
+    rms: Float[Array, ""]
+    used: Int[Array, ""]
+
+
+def slab_distance(points: Float[Array, "3 N"], planes, d) -> Float[Array, " N"]:
+    """Distance of each point (frame n or ν, SoA) to the nearest cutting plane."""
+    return jnp.min(jnp.stack([jnp.abs(points[j] - offset * d) for j, offset in planes]), axis=0)
+
+
+def smallest_eigen(
+    S: Float[Array, "K 3 3"],
+) -> tuple[Float[Array, " K"], Float[Array, " K"], Float[Array, "K 3"], Bool[Array, " K"]]:
+    """Smallest and middle eigenvalues of symmetric 3 × 3 matrices, the unit eigenvector of the
+    smallest, and whether it is defined (False where the smallest eigenvalue is not single,
+    e.g. collinear or coincident points: then the vector is 0).
+
+    Closed form (trigonometric eigenvalues, then the largest cross product of two rows of
+    S − λ_min I): several times faster than batched `jnp.linalg.eigh` on the 2-core CPU (a
+    scratch timing; `experiments/bench_estimate.py` times the whole build) and as accurate
+    (`tests/test_fine.py` checks it against eigh). The middle eigenvalue, used only for the
+    planarity ratio, is resolved to ≈ √eps relative where the two largest coincide."""
+    s00, s11, s22 = S[:, 0, 0], S[:, 1, 1], S[:, 2, 2]
+    s01, s02, s12 = S[:, 0, 1], S[:, 0, 2], S[:, 1, 2]
+    q = (s00 + s11 + s22) / 3
+    a, b, c = s00 - q, s11 - q, s22 - q
+    p = jnp.sqrt((a * a + b * b + c * c + 2 * (s01 * s01 + s02 * s02 + s12 * s12)) / 6)
+    inv = 1 / jnp.where(p > 0, p, 1)
+    a, b, c, d, e, f = a * inv, b * inv, c * inv, s01 * inv, s02 * inv, s12 * inv
+    half_det = (a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)) / 2
+    angle = jnp.arccos(jnp.clip(half_det, -1, 1)) / 3
+    largest = q + 2 * p * jnp.cos(angle)
+    smallest = q + 2 * p * jnp.cos(angle + 2 * jnp.pi / 3)
+    middle = 3 * q - largest - smallest
+    M = S - smallest[:, None, None] * jnp.eye(3, dtype=S.dtype)
+    rows = M[:, 0], M[:, 1], M[:, 2]
+    crosses = jnp.stack([jnp.cross(rows[0], rows[1]), jnp.cross(rows[0], rows[2]), jnp.cross(rows[1], rows[2])], 1)
+    norms = jnp.linalg.norm(crosses, axis=2)
+    best = jnp.argmax(norms, axis=1)
+    vector = jnp.take_along_axis(crosses, best[:, None, None], axis=1)[:, 0]
+    size = jnp.take_along_axis(norms, best[:, None], axis=1)[:, 0]
+    # The eigenvector is defined where the smallest eigenvalue is single. Near a double root the
+    # arccos above resolves the eigenvalues only to ≈ √eps · p, hence the margin.
+    defined = (middle - smallest) > 30 * jnp.sqrt(jnp.finfo(S.dtype).eps) * p
+    return smallest, middle, jnp.where(defined[:, None], vector / jnp.where(defined, size, 1)[:, None], 0.0), defined
+
+
+def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Config, planes, d) -> FineCloud:
+    """The previous side of the fine stage from the previous points in frame n (rows)."""
+    stage = FineStage(points=1) if config.fine is None else config.fine  # None: one empty slot
+    K = stage.points
+    A = jnp.where(valid[:, None], prev_n, 0.0).T
+    near = valid & (slab_distance(A, planes, d) <= stage.prev_slab * d)
+    idx, live = spread_subset(near, K)
+    P = A[:, idx]
+    grid = voxel_grid(P, live, NEIGHBOUR_VOXEL * voxel_spacing(P, live))
+    nb, d2 = k_nearest(grid, P, min(stage.neighbours, K), NEIGHBOUR_SLOTS)
+    found = jnp.isfinite(d2).astype(P.dtype)  # neighbours within the search's reach
+    hood = P[:, nb]  # (3, K, k)
+    centroid = jnp.sum(hood * found, axis=2, keepdims=True) / jnp.maximum(jnp.sum(found, axis=1), 1)[:, None]
+    centred = (hood - centroid) * found
+    scatter = jnp.einsum("ikn,jkn->kij", centred, centred)
+    smallest, middle, normal, defined = smallest_eigen(scatter)
+    enough = (jnp.sum(found, axis=1) >= 3) & defined
+    # Planarity: smallest / middle scatter eigenvalue. Keep the `fine_planar_fraction` most
+    # planar points: a rank, not an absolute threshold, so that it works whatever the noise
+    # (with 1 cm range noise on N5 every neighbourhood scored above 0.01, noise-free the
+    # faces score ~0 and the edges high).
+    flatness = jnp.where(live & enough, smallest / jnp.maximum(middle, jnp.finfo(P.dtype).tiny), jnp.inf)
+    count = jnp.sum(live & enough)
+    kth = jnp.clip(jnp.ceil(stage.planar_fraction * count).astype(jnp.int32) - 1, 0, K - 1)
+    ok = live & enough & (flatness <= jnp.sort(flatness)[kth])
+    # With `fine_anchor` "centroid" the plane goes through the neighbourhood's centroid, which
+    # averages the range noise of `fine_neighbours` points. Through the raw noisy point, the
+    # nearest-neighbour match prefers previous points whose noise moved them towards the
+    # current point, which biased registrations of N5 with 1 cm noise in proportion to the
+    # motion (experiments/fine_anchor.py). Matching and the inlier test use the points.
+    normal = normal.T
+    anchor = centroid[:, :, 0] if stage.anchor == "centroid" else P
+    offset = jnp.sum(normal * anchor, axis=0)
+    return FineCloud(jnp.where(live, P, 0.0), jnp.where(ok, normal, 0.0), jnp.where(ok, offset, 0.0), ok, grid)
+
+
+def _moved(p: Float[Array, "6"], b: Float[Array, "3 S"]) -> Float[Array, "3 S"]:
+    """q = G(θ, φ, ψ)ᵀ (b − (x, y, z)): points of frame n (SoA) in frame ν."""
+    return jnp.stack(into_moved_frame(p, b[0], b[1], b[2]))
+
+
+def _match(q: Float[Array, "3 S"], fine: FineCloud):
+    """Nearest selected previous point of each q (index) and its distance, metres (inf beyond
+    the neighbour search's reach). A match whose point is not planar is no inlier."""
+    q = jax.lax.stop_gradient(q)  # the correspondence is held constant under differentiation
+    return nearest(fine.grid, q, NEIGHBOUR_SLOTS)
+
+
+class Matches(NamedTuple):
+    """The plane (unit normal, offset; frame n) matched to each current point, and whether
+    its previous point is planar."""
+
+    normals: Float[Array, "3 S"]
+    offsets: Float[Array, " S"]
+    valid: Bool[Array, " S"]
+    points: Float[Array, "3 S"]
+
+
+def _residuals(p, b, matched: Matches, weight):
+    """Point-to-plane residuals of the current points b (frame n) at p against their matched
+    previous points and normals; 0 where `weight` is false. Metres.
+
+    The dot product is written out per component: as `jnp.sum(normals * q, axis=0)`,
+    `jax.jit(jax.jacfwd(...))` returned a wrong Jacobian from 6144 points up on XLA:CPU (jax
+    0.10.2; two of its columns equal, so a singular covariance and a wrong Levenberg–Marquardt
+    step), while the eager Jacobian was right. `tests/test_fine.py` compares the two."""
+    q = _moved(p, b)
+    n = matched.normals
+    r = n[0] * q[0] + n[1] * q[1] + n[2] * q[2] - matched.offsets
+    return jnp.where(weight, r, 0.0)
+
+
+def _correspond(p, b, live, fine: FineCloud, inlier) -> tuple[Matches, Bool[Array, " S"]]:
+    """The nearest previous point (and normal) of each current point at p, and the inlier mask."""
+    nearest, dist = _match(_moved(p, b), fine)
+    matched = Matches(fine.normals[:, nearest], fine.offsets[nearest], fine.valid[nearest], fine.points[:, nearest])
+    return matched, live & matched.valid & (dist < inlier)
+
+
+def _robust_weights(r: Float[Array, " S"], inlier: Bool[Array, " S"]) -> Float[Array, " S"]:
+    """Cauchy IRLS weights of residuals r (metres) for one round (see `ROBUST_SCALE`); 0 for
+    points that are no inliers."""
+    spread = 1.4826 * jnp.nanmedian(jnp.where(inlier, jnp.abs(r), jnp.nan))
+    c = jnp.maximum(ROBUST_SCALE * jnp.where(jnp.isfinite(spread), spread, 0.0), ROBUST_FLOOR)
+    return jnp.where(inlier, 1 / (1 + (r / c) ** 2), 0.0)
+
+
+def _noise_floor_cm(r: Float[Array, " S"], w: Float[Array, " S"], inlier: Bool[Array, " S"]) -> Float[Array, ""]:
+    """σ̂/√n in centimetres: the weighted RMS residual σ̂ (metres) of n inliers over √n, the
+    scale below which the data cannot place the surfaces (see `NOISE_FRACTION`)."""
+    return 100 * _weighted_rms(r, w) / jnp.sqrt(jnp.maximum(jnp.sum(inlier), 1))
+
+
+def _weighted_rms(r: Float[Array, " S"], w: Float[Array, " S"]) -> Float[Array, ""]:
+    """√(Σ w r² / Σ w), metres (0 when every weight is 0)."""
+    return jnp.sqrt(jnp.sum(w * r**2) / jnp.maximum(jnp.sum(w), jnp.finfo(r.dtype).tiny))
+
+
+def select_current(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, "3 S"], Bool[Array, " S"]]:
+    """The current points (frame n, SoA) within `fine_curr_slab`·d of a cutting plane of frame
+    ν(p), thinned evenly to `fine_points`, and their mask."""
+    q = _moved(p, problem.curr)
+    near = problem.curr_valid & (slab_distance(q, problem.planes, problem.d) <= config.fine.curr_slab * problem.d)
+    idx, live = spread_subset(near, config.fine.points)
+    return problem.curr[:, idx], live
+
+
+def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
+    """Least-squares covariance of a fine-stage result p (radians and metres, frame n):
+    Σ = σ̂² (JᵀJ)⁻¹, with J the Jacobian of the matched point-to-plane residuals at p (the
+    Gauss–Newton Hessian of the fine objective) and σ̂² = Σ r² / (n − 6) over the n inliers.
+    Assumes independent residuals; `experiments/nees.py` measures how far that holds. σ̂ is
+    at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite covariance."""
+    p = jnp.asarray(p, problem.d.dtype)
+    b, live = select_current(problem, config, p)
+    matched, weight = _correspond(p, b, live, problem.fine, config.fine.inlier)
+    J = jax.jacfwd(_residuals)(p, b, matched, weight)
+    r = _residuals(p, b, matched, weight)
+    sigma2 = jnp.maximum(jnp.sum(r**2) / jnp.maximum(jnp.sum(weight) - 6, 1), SIGMA_FLOOR**2)
+    cov = sigma2 * jnp.linalg.inv(J.T @ J)
+    return (cov + cov.T) / 2
+
+
+def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult:
+    """Minimise the point-to-plane residuals of the near-plane points from `start` (frame n).
+    See the module docstring. Pure and jittable.
+
+    Rounds of: match each current point to its nearest previous point at the current p, then
+    solve the least-squares problem with those correspondences fixed (optimistix
+    Levenberg–Marquardt). A nearest-neighbour search costs S·K distances and the fixed-match
+    solve only S residuals, so matching once per round rather than once per LM evaluation
+    made the stage about 6× cheaper (370 → 65 ms on N5 variant 2). Stops when a round moves
+    p by less than `ROUND_TOL` or than `NOISE_FRACTION` of the noise floor, or after
+    `fine_rounds` rounds; `converged` says which.
+    """
+    dtype = problem.d.dtype
+    start = jnp.asarray(start, dtype)
+    fine = problem.fine
+    inlier = jnp.asarray(config.fine.inlier, dtype)
+    b, live = select_current(problem, config, start)
+    scale = jnp.asarray(PARAMETER_SCALE, dtype)
+    solver = optx.LevenbergMarquardt(rtol=config.fine.tol, atol=config.fine.tol)
+
+    def one_round(state):
+        y, _, _, rounds, steps, _ = state
+        matched, weight = _correspond(y * scale, b, live, fine, inlier)
+        r0 = _residuals(y * scale, b, matched, weight)
+        w0 = _robust_weights(r0, weight)
+        root_w = jnp.sqrt(w0)
+
+        def fn(y_, _):
+            p_ = y_ * scale
+            plane = root_w * _residuals(p_, b, matched, weight)
+            point = POINT_WEIGHT * root_w * (_moved(p_, b) - matched.points)
+            return plane / RESIDUAL_UNIT, point / RESIDUAL_UNIT
+
+        sol = optx.least_squares(fn, solver, y, None, max_steps=config.fine.steps, throw=False)
+        moved = jnp.max(jnp.abs(sol.value - y))
+        tol = jnp.maximum(ROUND_TOL, _noise_floor_cm(r0, w0, weight) * NOISE_FRACTION)
+        return sol.value, moved, tol, rounds + 1, steps + sol.stats["num_steps"], (matched, weight)
+
+    def more(state):
+        _, moved, tol, rounds, _, _ = state
+        return (moved > tol) & (rounds < config.fine.rounds)
+
+    # Placeholder matches, of the right structure: the loop runs at least once and replaces them.
+    shapes = jax.eval_shape(lambda: _correspond(start, b, live, fine, inlier))
+    unmatched = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+    inf = jnp.asarray(jnp.inf, dtype)
+    state = (start / scale, inf, jnp.asarray(ROUND_TOL, dtype), jnp.asarray(0), jnp.asarray(0), unmatched)
+    y, moved, tol, _, steps, (matched, weight) = jax.lax.while_loop(more, one_round, state)
+    p = y * scale
+    # The inlier fraction and RMS use the last round's matches (made where that round started,
+    # within ROUND_TOL of p when converged) rather than a fresh nearest-neighbour search at p,
+    # which would cost as much as a round's matching.
+    r = _residuals(p, b, matched, weight)
+    w = _robust_weights(r, weight)
+    n_in, used = jnp.sum(weight), jnp.sum(live)
+    return FineResult(
+        params=p,
+        converged=moved <= tol,
+        steps=jnp.asarray(steps, jnp.int32),
+        inliers=jnp.where(used > 0, n_in / jnp.maximum(used, 1), 0.0),
+        rms=_weighted_rms(r, w),
+        used=used.astype(jnp.int32),
+    )
+
+
+__all__ = [
+    "FineCloud",
+    "FineResult",
+    "fine_cloud",
+    "smallest_eigen",
+    "fine_covariance",
+    "fine_refine",
+    "select_current",
+    "spread_subset",
+]

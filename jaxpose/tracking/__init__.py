@@ -1,0 +1,28 @@
+"""Tracking: registration of a sequence of clouds, chained against keyframes and filtered.
+
+`track(clouds, dt, key=...)` registers each frame against a keyframe with the method core,
+then runs an error-state Kalman filter on SO(3) × R³ that gives attitude, angular rate and
+acceleration, and the position and velocity of the first cloud's plane-frame origin.
+"""
+
+from ._track import (
+    FILTER_BAD_MEASUREMENT as FILTER_BAD_MEASUREMENT,
+)
+from ._track import (
+    FILTER_BAD_UPDATE as FILTER_BAD_UPDATE,
+)
+from ._track import (
+    FILTER_NO_ESTIMATE as FILTER_NO_ESTIMATE,
+)
+from ._track import (
+    FILTER_STATUS_NAME as FILTER_STATUS_NAME,
+)
+from ._track import (
+    FILTER_UPDATED as FILTER_UPDATED,
+)
+from ._track import (
+    Track as Track,
+)
+from ._track import (
+    track as track,
+)
