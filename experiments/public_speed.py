@@ -107,7 +107,9 @@ def cli_end_to_end(folder: Path, cache: str) -> float:
     jp.save_cloud(b, case.curr)
     env = {**os.environ, "JAXPOSE_CACHE": cache}
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "jaxpose._cli", "estimate", str(a), str(b)], env=env, capture_output=True)
+    subprocess.run(
+        [sys.executable, "-m", "jaxpose._cli", "estimate", str(a), str(b)], env=env, capture_output=True, check=True
+    )
     return time.perf_counter() - t0
 
 

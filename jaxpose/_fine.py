@@ -138,8 +138,8 @@ def smallest_eigen(
     e.g. collinear or coincident points: then the vector is 0).
 
     Closed form (trigonometric eigenvalues, then the largest cross product of two rows of
-    S − λ_min I): several times faster than batched `jnp.linalg.eigh` on the 2-core CPU (a
-    scratch timing; `experiments/bench_estimate.py` times the whole build) and as accurate
+    S − λ_min I): batched `jnp.linalg.eigh` on 3 × 3 matrices is a loop of small
+    decompositions on the CPU, this is a few dozen multiply-adds per matrix; it is as accurate
     (`tests/test_fine.py` checks it against eigh). The middle eigenvalue, used only for the
     planarity ratio, is resolved to ≈ √eps relative where the two largest coincide."""
     s00, s11, s22 = S[:, 0, 0], S[:, 1, 1], S[:, 2, 2]

@@ -20,6 +20,7 @@ import math
 from typing import NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
@@ -325,9 +326,9 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
         # Thinned evenly over the valid points (in scan order: evenly over the image).
         idx, sub = spread_subset(curr.valid, config.search.coarse_points)
         thinned = Cloud(curr.points[idx], sub & curr.valid[idx])
-        coarse = _patterns(frame, A, live, thinned, config.coarse_config, status)
+        coarse = _problem_at_level(frame, A, live, thinned, config.coarse_config, status)
         status = status | coarse.status
-    return _patterns(frame, A, live, curr, config, status, coarse)
+    return _problem_at_level(frame, A, live, curr, config, status, coarse)
 
 
 build_problem = BoundedJit(_build)
@@ -358,7 +359,80 @@ def _plane_grid(A: Float[Array, "N 3"], valid: Bool[Array, " N"], j: int, offset
     return _PlaneGrid(sel, uv, lo, e, [mk + 2 * ek + 1 for mk, ek in zip(m, e, strict=True)])
 
 
-def _patterns(
+class _PlanePattern(NamedTuple):
+    """One cutting plane's previous pattern on its grid (see `Problem` for the fields)."""
+
+    lo: Float[Array, "2"]
+    ext: Int[Array, "2"]
+    size: Int[Array, "2"]
+    selected: Int[Array, ""]
+    filled: Int[Array, ""]
+    r_field: Float[Array, "C2 C2"]
+    rm_field: Float[Array, "C2 C2"]
+    cells: Int[Array, " L"]
+    kr: Float[Array, " L"]
+    plane: Int[Array, " L"]
+    kr_sum: Float[Array, ""]
+    status: Int[Array, ""]
+
+
+def _plane_pattern(A, prev_valid, i: int, j: int, offset: float, d, config: Config) -> _PlanePattern:
+    """Plane i (normal axis j, offset in units of d) of the previous points A (frame n): its
+    grid, cell counts k, the fields r and r·M_prev padded by one cell, and its filled cells as
+    flat indices of the problem's field with their k·r; overflow bits in `status`."""
+    C, max_cells = config.capacities.grid_cells, config.capacities.max_cells
+    dtype = A.dtype
+    grid = _plane_grid(A, prev_valid, j, offset, d, config.patterns.extension)
+    sel, lo, e = grid.selected, grid.lo, grid.ext
+    status = jnp.where((grid.size[0] > C) | (grid.size[1] > C), PROBLEM_GRID_OVERFLOW, 0)
+    n = [jnp.minimum(nk, C) for nk in grid.size]
+    idx = [round_half_up((c - l_) / d) + ek for c, l_, ek in zip(grid.coords, lo, e, strict=True)]
+    inside = sel & (idx[0] < n[0]) & (idx[1] < n[1])
+    counts = (
+        jnp.zeros((C, C), dtype).at[jnp.where(inside, idx[0], C), jnp.where(inside, idx[1], C)].add(1.0, mode="drop")
+    )
+    filled = counts > 0
+    ka, kb = jnp.arange(C), jnp.arange(C)
+    in_grid = (ka[:, None] < n[0]) & (kb[None, :] < n[1])
+    centre_a = lo[0] + (ka - e[0]).astype(dtype) * d
+    centre_b = lo[1] + (kb - e[1]).astype(dtype) * d
+    r = jnp.where(in_grid, jnp.hypot(centre_a[:, None], centre_b[None, :]), 0.0)
+    m_prev = neighbourhood_max(filled.astype(dtype))
+
+    nfilled = jnp.sum(filled)
+    status = status | jnp.where(nfilled > max_cells, PROBLEM_CELLS_OVERFLOW, 0)
+    (flat_cells,) = jnp.nonzero(filled.ravel(), size=max_cells, fill_value=0)
+    live = jnp.arange(max_cells) < nfilled
+    a_c, b_c = flat_cells // C, flat_cells % C
+    return _PlanePattern(
+        lo=jnp.stack(lo),
+        ext=jnp.stack(e),
+        size=jnp.stack(n),
+        selected=jnp.sum(sel).astype(jnp.int32),
+        filled=nfilled.astype(jnp.int32),
+        r_field=jnp.pad(r, 1),
+        rm_field=jnp.pad(r * m_prev, 1),
+        cells=i * (C + 2) ** 2 + (a_c + 1) * (C + 2) + (b_c + 1),
+        kr=jnp.where(live, (counts * r).ravel()[flat_cells], 0.0),
+        plane=jnp.full(max_cells, i, jnp.int32),
+        kr_sum=jnp.sum(counts * r),
+        status=status,
+    )
+
+
+def _current_points(frame: PlaneFrame, curr: Cloud, config: Config, dtype):
+    """The current cloud's valid points in frame n, compacted to `max_points` slots
+    (structure of arrays, zero padded), their mask, and the overflow / too-few bits."""
+    n_curr = jnp.sum(curr.valid)
+    status = jnp.where(n_curr > config.capacities.max_points, PROBLEM_POINTS_OVERFLOW, 0)
+    status = status | jnp.where(n_curr < 10, PROBLEM_FEW_CURRENT, 0)
+    (keep,) = jnp.nonzero(curr.valid, size=config.capacities.max_points, fill_value=0)
+    curr_valid = jnp.arange(config.capacities.max_points) < n_curr
+    B = frame.to_frame(curr.points[keep].astype(dtype))
+    return jnp.where(curr_valid[:, None], B, 0.0).T, curr_valid, status
+
+
+def _problem_at_level(
     frame: PlaneFrame,
     A: Float[Array, "N 3"],
     prev_valid: Bool[Array, " N"],
@@ -373,76 +447,34 @@ def _patterns(
     d = jnp.asarray(config.patterns.d, dtype)
     C = config.capacities.grid_cells
     planes = config.patterns.planes()
+    patterns = [_plane_pattern(A, prev_valid, i, j, offset, d, config) for i, (j, offset) in enumerate(planes)]
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *patterns)
+    curr_n, curr_valid, curr_status = _current_points(frame, curr, config, dtype)
+    for pattern in patterns:
+        status = status | pattern.status
+    status = status | curr_status
 
-    lo, ext, size, selected, filled_n, fields_r, fields_rm = [], [], [], [], [], [], []
-    cells, krs, plane_ids, kr_sums = [], [], [], []
-    for i, (j, offset) in enumerate(planes):
-        grid = _plane_grid(A, prev_valid, j, offset, d, config.patterns.extension)
-        sel, lo_i, e = grid.selected, grid.lo, grid.ext
-        n = grid.size
-        status = status | jnp.where((n[0] > C) | (n[1] > C), PROBLEM_GRID_OVERFLOW, 0)
-        n = [jnp.minimum(nk, C) for nk in n]
-        idx = [round_half_up((c - l_) / d) + ek for c, l_, ek in zip(grid.coords, lo_i, e, strict=True)]
-        inside = sel & (idx[0] < n[0]) & (idx[1] < n[1])
-        counts = (
-            jnp.zeros((C, C), dtype)
-            .at[jnp.where(inside, idx[0], C), jnp.where(inside, idx[1], C)]
-            .add(1.0, mode="drop")
-        )
-        filled = counts > 0
-        ka, kb = jnp.arange(C), jnp.arange(C)
-        in_grid = (ka[:, None] < n[0]) & (kb[None, :] < n[1])
-        centre_a = lo_i[0] + (ka - e[0]).astype(dtype) * d
-        centre_b = lo_i[1] + (kb - e[1]).astype(dtype) * d
-        r = jnp.where(in_grid, jnp.hypot(centre_a[:, None], centre_b[None, :]), 0.0)
-        m_prev = neighbourhood_max(filled.astype(dtype))
-        fields_r.append(jnp.pad(r, 1))
-        fields_rm.append(jnp.pad(r * m_prev, 1))
+    def flat(fields):
+        return jnp.concatenate([f.ravel() for f in fields] + [jnp.zeros(1, dtype)])
 
-        nfilled = jnp.sum(filled)
-        status = status | jnp.where(nfilled > config.capacities.max_cells, PROBLEM_CELLS_OVERFLOW, 0)
-        (flat_cells,) = jnp.nonzero(filled.ravel(), size=config.capacities.max_cells, fill_value=0)
-        live = jnp.arange(config.capacities.max_cells) < nfilled
-        a_c, b_c = flat_cells // C, flat_cells % C
-        cells.append(i * (C + 2) ** 2 + (a_c + 1) * (C + 2) + (b_c + 1))
-        kr = (counts * r).ravel()[flat_cells]
-        krs.append(jnp.where(live, kr, 0.0))
-        plane_ids.append(jnp.full(config.capacities.max_cells, i, jnp.int32))
-        kr_sums.append(jnp.sum(counts * r))
-        lo.append(jnp.stack(lo_i))
-        ext.append(jnp.stack(e))
-        size.append(jnp.stack(n))
-        selected.append(jnp.sum(sel).astype(jnp.int32))
-        filled_n.append(nfilled.astype(jnp.int32))
-
-    # Current cloud: keep the valid points only, in frame n, as structure of arrays.
-    n_curr = jnp.sum(curr.valid)
-    status = status | jnp.where(n_curr > config.capacities.max_points, PROBLEM_POINTS_OVERFLOW, 0)
-    status = status | jnp.where(n_curr < 10, PROBLEM_FEW_CURRENT, 0)
-    (keep,) = jnp.nonzero(curr.valid, size=config.capacities.max_points, fill_value=0)
-    curr_valid = jnp.arange(config.capacities.max_points) < n_curr
-    B = frame.to_frame(curr.points[keep].astype(dtype))
-    B = jnp.where(curr_valid[:, None], B, 0.0)
-
-    flat = lambda fs: jnp.concatenate([f.ravel() for f in fs] + [jnp.zeros(1, dtype)])  # noqa: E731
     return Problem(
         frame=frame,
         d=d,
         bin_width=jnp.asarray(config.patterns.bin_width, dtype),
         select_width=jnp.asarray(config.patterns.select_width, dtype),
-        curr=B.T,
+        curr=curr_n,
         curr_valid=curr_valid,
-        lo=jnp.stack(lo),
-        ext=jnp.stack(ext),
-        size=jnp.stack(size),
-        prev_cells=jnp.concatenate(cells).astype(jnp.int32),
-        prev_kr=jnp.concatenate(krs),
-        prev_plane=jnp.concatenate(plane_ids),
-        kr_sum=jnp.stack(kr_sums),
-        r_field=flat(fields_r),
-        rm_field=flat(fields_rm),
-        prev_selected=jnp.stack(selected),
-        prev_filled=jnp.stack(filled_n),
+        lo=stacked.lo,
+        ext=stacked.ext,
+        size=stacked.size,
+        prev_cells=stacked.cells.ravel().astype(jnp.int32),
+        prev_kr=stacked.kr.ravel(),
+        prev_plane=stacked.plane.ravel(),
+        kr_sum=stacked.kr_sum,
+        r_field=flat([p.r_field for p in patterns]),
+        rm_field=flat([p.rm_field for p in patterns]),
+        prev_selected=stacked.selected,
+        prev_filled=stacked.filled,
         fine=fine_cloud(A, prev_valid, config, planes, d),
         status=jnp.asarray(status, jnp.int32),
         planes=planes,

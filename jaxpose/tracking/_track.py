@@ -255,8 +255,8 @@ class Chain(eqx.Module):
 
 # Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 1.52× too small on N5
 # pairs with 1 cm range noise (experiments/nees.py; with the scale the NEES is consistent).
-# Calibrated with `fine_anchor` "centroid", that of Config.tracking() whose registrations the
-# filter is fed; with the planes through the points (the other presets) it was 2.36.
+# Calibrated with `FineStage.anchor` "centroid", that of Config.tracking() and the default;
+# with the planes through the points (`Config.fast()`, `wide()`) the factor is 2.36.
 COVARIANCE_SCALE = 1.52
 
 
