@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from reference import printed_rotation  # the matrix as printed in the paper, typed element by element
 
 import jaxpose as jp
+from jaxpose._rotations import into_moved_frame, rotate_components
 
 angle = st.floats(-np.pi, np.pi)
 inner = st.floats(-np.pi / 2 + 1e-3, np.pi / 2 - 1e-3)
@@ -51,3 +52,18 @@ def test_rotation_angle():
     axis_angle = np.linalg.norm(np.asarray(jaxlie.SO3.from_matrix(G).log()))
     np.testing.assert_allclose(float(jp.rotation_angle(G, jnp.eye(3))), axis_angle, atol=1e-12)
     assert float(jp.rotation_angle(G, G)) == 0.0
+
+
+@given(angle, angle, angle, st.integers(0, 2**31 - 1))
+@settings(max_examples=30, deadline=None)
+def test_points_into_the_moved_frame_are_g_transposed_times_the_shifted_points(t, f, s, seed):
+    """The structure-of-arrays transform (used by the objectives, the fine stage and the
+    simulator) against the plain matrix product q = Gᵀ (b − (x, y, z))."""
+    rng = np.random.default_rng(seed)
+    b, shift = rng.normal(size=(3, 17)), rng.normal(size=3)
+    p = jnp.array([t, f, s, *shift])
+    G = np.asarray(jp.rotation(t, f, s))
+    want = G.T @ (b - shift[:, None])
+    got = np.stack(into_moved_frame(p, *jnp.asarray(b)))
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    np.testing.assert_allclose(np.stack(rotate_components(jnp.asarray(G), *jnp.asarray(b))), G @ b, atol=1e-12)
