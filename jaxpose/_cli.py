@@ -52,10 +52,12 @@ def reproduce(
 ):
     """The paper's test example end to end: Tables 1–3 and Figs. 4–6, the paper's configuration
     (3 planes, hard objective, no refine) and ours (default), beside the paper's printed values."""
+    import dataclasses
+
     from rich.console import Console
     from rich.markdown import Markdown
 
-    from . import Capacities, Config, GlobalSearch
+    from . import Capacities, Config
     from .evaluation.figures import plot_clouds, plot_patterns, plot_selected
     from .evaluation.reproduction import run_reproduction, tables_markdown, write_csv
     from .sim._scenarios import paper_pair
@@ -64,7 +66,7 @@ def reproduce(
     # One capacity for all four pairs (one compile per config); --quick swaps in small searches.
     capacities = Capacities(max_points=5120)
     if quick:
-        small = GlobalSearch(objective="hard", coarse_factor=1, population=16, generations=20, recentre=0)
+        small = dataclasses.replace(Config.paper().search, population=16, generations=20)
         configs = {
             "paper": Config.paper(search=small, capacities=capacities),
             "default": Config.fast(capacities=capacities),

@@ -31,7 +31,7 @@ configs)."""
 
 def _check_range(owner: str, name: str, value, lo: float, hi: float, closed_low: bool = False) -> None:
     if not isinstance(value, int | float):
-        return  # a traced value: checked by the caller's status, not here
+        return  # an array (possibly traced) is not inspected here
     ok = (lo <= value <= hi) if closed_low else (lo < value <= hi)
     if not ok:
         bracket = "[" if closed_low else "("
@@ -555,36 +555,36 @@ def _apply_legacy(sections: dict, legacy: dict) -> dict:
 
 
 def _legacy_refine(refine: Refine | None, legacy: dict) -> Refine | None:
-    kind = legacy.get("local", "none" if refine is None else "keep")
-    if kind == "none":
+    """The refine that the deprecated `local`, `local_steps` and `local_tol` describe, on top of
+    `refine`: `local` picks the solver (unchanged when absent), `local_tol` its rtol = atol."""
+    kind = legacy.get("local")
+    if kind == "none" or (kind is None and refine is None):
         return None
-    if kind not in ("bfgs", "nelder_mead", "keep"):
+    solvers = {"bfgs": optx.BFGS, "nelder_mead": optx.NelderMead}
+    if kind is not None and kind not in solvers:
         raise ValueError(f"local must be 'bfgs', 'nelder_mead' or 'none', got {kind!r}.")
     base = Refine() if refine is None else refine
-    tol = legacy.get("local_tol", base.solver.rtol)
-    if kind == "nelder_mead":
-        solver = optx.NelderMead(rtol=tol, atol=tol)
-    elif kind == "bfgs" or "local_tol" in legacy:
-        solver = type(base.solver)(rtol=tol, atol=tol) if kind == "keep" else optx.BFGS(rtol=tol, atol=tol)
-    else:
-        solver = base.solver
+    solver = base.solver
+    if kind is not None or "local_tol" in legacy:
+        tol = legacy.get("local_tol", base.solver.rtol)
+        solver = solvers.get(kind, type(base.solver))(rtol=tol, atol=tol)
     return Refine(solver, legacy.get("local_steps", base.max_steps))
 
 
 def _legacy_value(config: Config, name: str):
+    """The value a deprecated flat name reads; a stage switched off reads its defaults."""
+    refine = Refine() if config.refine is None else config.refine
     if name == "local":
         if config.refine is None:
             return "none"
-        return "nelder_mead" if isinstance(config.refine.solver, optx.NelderMead) else "bfgs"
+        return "nelder_mead" if isinstance(refine.solver, optx.NelderMead) else "bfgs"
     if name == "local_steps":
-        return 0 if config.refine is None else config.refine.max_steps
+        return refine.max_steps
     if name == "local_tol":
-        return REFINE_TOL if config.refine is None else config.refine.solver.rtol
+        return refine.solver.rtol
     section, field = _LEGACY[name]
     part = getattr(config, section)
-    if part is None:
-        return getattr(FineStage(), field)
-    return getattr(part, field)
+    return getattr(FineStage() if part is None else part, field)
 
 
 JIT_GRID_CELLS = 256

@@ -1,7 +1,7 @@
 """`estimate`: the displacement between two clouds, end to end, with a status.
 
 Problem → global search (CMA-ES) → local refine (soft objective) → fine stage (point-to-plane
-least squares on the near-plane points, `jaxpose.fine`) → hard score reported.
+least squares, `_fine`) → hard score reported; the result is a `Status` item.
 """
 
 from __future__ import annotations

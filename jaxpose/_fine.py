@@ -1,25 +1,27 @@
-"""Fine stage: point-to-plane least squares on the points near the cutting planes (ours).
+"""Fine stage: point-to-plane least squares on the visible surface or the points near the
+cutting planes (ours).
 
 The pattern objectives compare cell occupancies, so their optimum is resolved to a fraction
 of a cell (d = 2.6 cm) and lands 0.1–0.6° from the truth on the paper's pairs. The fine stage
-keeps the method's data reduction — only points near the cutting planes take part — but
-measures how far each current point lies from the previous *surface*:
+measures how far each current point lies from the previous *surface*, over the whole visible
+surface (the default: slabs of infinite width) or, as the method's data reduction, only the
+points near the cutting planes:
 
 - previous side (built once, in [`jaxpose.Problem.build`][]): the previous points within
-  `fine_prev_slab`·d of a cutting plane, in frame n, each with the normal of a plane fitted to
-  its `fine_neighbours` nearest such points; only the `fine_planar_fraction` most planar
+  `FineStage.prev_slab`·d of a cutting plane, in frame n, each with the normal of a plane fitted to
+  its `FineStage.neighbours` nearest such points; only the `FineStage.planar_fraction` most planar
   neighbourhoods (smallest / middle scatter eigenvalue) keep their point, because at edges
   and corners a normal is meaningless;
-- current side (chosen once, at the start p₀): the current points within `fine_curr_slab`·d
+- current side (chosen once, at the start p₀): the current points within `FineStage.curr_slab`·d
   of a cutting plane of frame ν(p₀);
 - residual of current point i at p: nᵀ(qᵢ(p) − a), with qᵢ(p) its coordinates in frame ν
   and (a, n) the nearest previous point and its normal — zero where the moved surfaces
   coincide; with `FineStage.anchor` "centroid" the plane goes through the centroid of
   a's neighbourhood instead of a (it averages the range noise; `Config.tracking()`).
-  Points farther than `fine_inlier` from every previous point (surface seen only in one
+  Points farther than `FineStage.inlier` from every previous point (surface seen only in one
   cloud) get weight 0.
 
-This is point-to-plane ICP (Chen & Medioni 1992) restricted to the near-plane points:
+This is point-to-plane ICP (Chen & Medioni 1992) on the selected points:
 rounds of nearest-neighbour matching, each followed by optimistix's Levenberg–Marquardt on
 the matched residuals. Its basin is a few degrees, so it follows the global search and the
 soft refine and never replaces them. Lengths in metres, angles in radians, frame n.
@@ -53,7 +55,7 @@ NEIGHBOUR_VOXEL = 2.0
 nearest-neighbour distance): a voxel holds about four points of a surface seen head-on."""
 
 NEIGHBOUR_SLOTS = 16
-"""Points read from each column of three voxels (`jaxpose.neighbours.candidates`)."""
+"""Points read from each column of three voxels (`_neighbours.candidates`)."""
 
 ROBUST_SCALE = 3.0
 """Cauchy weights 1 / (1 + (r / c)²) with c = this × the round's robust residual scale
@@ -92,7 +94,7 @@ class FineCloud(eqx.Module):
       through the point, or through its neighbourhood's centroid (`FineStage.anchor`).
     - `valid`: `(K,)` mask (selected and planar).
     - `grid`: the voxel grid of the selected points (planar or not) that the matching
-      searches ([`jaxpose.neighbours`][]); its voxel is `NEIGHBOUR_VOXEL` sampling steps.
+      searches (`_neighbours`); its voxel is `NEIGHBOUR_VOXEL` sampling steps.
     """
 
     points: Float[Array, "3 K"]
@@ -107,9 +109,9 @@ class FineResult(eqx.Module):
 
     - `params`: p in frame n (radians, metres).
     - `converged`: the last round moved p by at most `ROUND_TOL`, or by less than
-      `NOISE_FRACTION` of the noise floor (within `fine_rounds`).
+      `NOISE_FRACTION` of the noise floor (within `FineStage.rounds`).
     - `steps`: LM steps taken, all rounds.
-    - `inliers`: fraction of the selected current points within `fine_inlier` of the
+    - `inliers`: fraction of the selected current points within `FineStage.inlier` of the
       previous points, with the last round's matches (made where that round started, within
       `ROUND_TOL` of `params` when converged); 0 when none was selected.
     - `rms`: root mean square point-to-plane residual of those inliers at `params`, each
@@ -184,7 +186,7 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     scatter = jnp.einsum("ikn,jkn->kij", centred, centred)
     smallest, middle, normal, defined = smallest_eigen(scatter)
     enough = (jnp.sum(found, axis=1) >= 3) & defined
-    # Planarity: smallest / middle scatter eigenvalue. Keep the `fine_planar_fraction` most
+    # Planarity: smallest / middle scatter eigenvalue. Keep the `FineStage.planar_fraction` most
     # planar points: a rank, not an absolute threshold, so that it works whatever the noise
     # (with 1 cm range noise on N5 every neighbourhood scored above 0.01, noise-free the
     # faces score ~0 and the edges high).
@@ -192,8 +194,8 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     count = jnp.sum(live & enough)
     kth = jnp.clip(jnp.ceil(stage.planar_fraction * count).astype(jnp.int32) - 1, 0, K - 1)
     ok = live & enough & (flatness <= jnp.sort(flatness)[kth])
-    # With `fine_anchor` "centroid" the plane goes through the neighbourhood's centroid, which
-    # averages the range noise of `fine_neighbours` points. Through the raw noisy point, the
+    # With `FineStage.anchor` "centroid" the plane goes through the neighbourhood's centroid, which
+    # averages the range noise of `FineStage.neighbours` points. Through the raw noisy point, the
     # nearest-neighbour match prefers previous points whose noise moved them towards the
     # current point, which biased registrations of N5 with 1 cm noise in proportion to the
     # motion (experiments/fine_anchor.py). Matching and the inlier test use the points.
@@ -266,8 +268,8 @@ def _weighted_rms(r: Float[Array, " S"], w: Float[Array, " S"]) -> Float[Array, 
 
 
 def select_current(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, "3 S"], Bool[Array, " S"]]:
-    """The current points (frame n, SoA) within `fine_curr_slab`·d of a cutting plane of frame
-    ν(p), thinned evenly to `fine_points`, and their mask."""
+    """The current points (frame n, SoA) within `FineStage.curr_slab`·d of a cutting plane of frame
+    ν(p), thinned evenly to `FineStage.points`, and their mask."""
     q = _moved(p, problem.curr)
     near = problem.curr_valid & (slab_distance(q, problem.planes, problem.d) <= config.fine.curr_slab * problem.d)
     idx, live = spread_subset(near, config.fine.points)
@@ -291,7 +293,7 @@ def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Arra
 
 
 def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult:
-    """Minimise the point-to-plane residuals of the near-plane points from `start` (frame n).
+    """Minimise the point-to-plane residuals of the selected current points from `start` (frame n).
     See the module docstring. Pure and jittable.
 
     Rounds of: match each current point to its nearest previous point at the current p, then
@@ -300,7 +302,7 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
     solve only S residuals, so matching once per round rather than once per LM evaluation
     made the stage about 6× cheaper (370 → 65 ms on N5 variant 2). Stops when a round moves
     p by less than `ROUND_TOL` or than `NOISE_FRACTION` of the noise floor, or after
-    `fine_rounds` rounds; `converged` says which.
+    `FineStage.rounds` rounds; `converged` says which.
     """
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)

@@ -74,8 +74,8 @@ def run_bench(repeats: int = 10, candidates: int = 4096, batch: int = 8, presets
     key = jax.random.key(0)
     scale = jnp.array([0.035] * 3 + [0.02] * 3)
     ps = jax.random.uniform(key, (candidates, 6), minval=-1.0, maxval=1.0) * scale
+    problem = Problem.build(pair.prev, pair.curr, Config(capacities=Capacities(max_points=5120)))
     for objective in ("hard", "soft"):
-        problem = Problem.build(pair.prev, pair.curr, Config(capacities=Capacities(max_points=5120)))
         fn = jax.jit(lambda ps, pb, o=objective: score_batch(ps, pb, o))
         res = time_call(fn, ps, problem, repeats=max(3, repeats // 2))
         out[f"score_{objective}"] = {**res, "candidates": candidates, "poses_per_s": candidates / res["median_s"]}

@@ -1,6 +1,6 @@
 """jaxpose and peer registration methods on the same cloud pairs, measured in one run.
 
-Errors against the truth of each [`jaxpose.scenarios.Pair`][]:
+Errors against the truth of each `jaxpose.sim.Pair`:
 
 - `rotation_error_deg`: angle of R_est R_trueᵀ (camera frame c), degrees;
 - `angle_error_deg`, `translation_error_cm`: the largest absolute error of (θ, φ, ψ) and of

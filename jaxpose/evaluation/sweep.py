@@ -4,7 +4,7 @@ Base case: N5 at 5.5 m in the paper's previous attitude, rotated by 10° about a
 through O_t, noise-free, no dropout. Each sweep varies one condition over the values of
 [`AXES`][] and keeps the others at the base; trial j of value v uses key (seed, axis, v, j),
 so a sweep is reproducible and a value's trials do not depend on the value list. The trials
-of one value run as one batch through [`jaxpose.scale.estimate_sharded`][], so a sweep spreads over every JAX device
+of one value run as one batch through `jaxpose._scale.estimate_sharded`, so a sweep spreads over every JAX device
 (and every host after `jax.distributed.initialize()`).
 
 A trial is *found* when the rotation error is < 1°; *success* when it is also reported as a
