@@ -17,6 +17,21 @@ RESULTS = Path(__file__).resolve().parent.parent / "results"
 T_PAPER = jnp.asarray(PAPER_T)
 
 
+NEAR_PLANE_FINE = jp.FineStage(prev_slab=3.0, curr_slab=2.0, points=2048, anchor="point", guard=1.0, tol=1e-6)
+"""The fine stage near the cutting planes: 2048 points a side, slabs of 3d / 2d, planes
+through the points, no guard, tolerance 1e-6."""
+
+
+def full_search(points: int | None = None, **changes) -> jp.Config:
+    """The search on the full patterns (CMA-ES 32 × 40, up to 100 BFGS steps, as in
+    `Config.tracking()`) with `NEAR_PLANE_FINE`: the setting several committed experiments
+    measured. `points`: a fixed current-point capacity (one compile for every pair).
+    `changes`: sections to replace."""
+    if points is not None:
+        changes.setdefault("capacities", jp.Capacities(max_points=points))
+    return jp.Config.tracking(**{"fine": NEAR_PLANE_FINE, **changes})
+
+
 def paper_rotation(pose: str):
     """Target attitude of a paper pose: "previous", "variant 1" or "variant 2"."""
     return paper_pose(pose)[0]

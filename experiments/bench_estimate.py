@@ -1,5 +1,6 @@
 """estimate speed and accuracy on the paper's four pairs, accuracy on random views, and
-vmapped-batch throughput, for the presets fast, accurate (default) and thorough.
+vmapped-batch throughput, for the default config, `Config.fast()` and `full_search()` (the
+full-pattern search with the near-plane fine stage, `experiments/_common.py`).
 
 Median of repeated runs after compile, compile time separately; errors in frame n against
 `true_displacement` (degrees, centimetres). Per pair two times: `ms` is
@@ -9,11 +10,10 @@ once compiled). The random views are `capture_pair(i, seed=1, 3°, 20°)`, i < 1
 5.5 m, random attitude, a 3–20° turn about a random axis, noise-free.
 
     uv run python experiments/bench_estimate.py [batch ...]  →  results/bench_estimate.json
-    uv run python experiments/bench_estimate.py settings     →  results/bench_settings.json
 
-Batch sizes default to 8. `settings`: the default against cheaper settings on 48 random
-views (counts of found / success / false success / statuses, no timings), the evidence for
-keeping the default's sizes. On an accelerator the file is `bench_estimate_<backend>.json`
+Batch sizes default to 8. Each config runs at one fixed capacity (5120 points on the paper's
+pairs, 8192 on the random views), so one program serves all its pairs. On an accelerator the
+file is `bench_estimate_<backend>.json`
 (e.g. `bench_estimate_gpu.json`), so a GPU run does not overwrite the CPU numbers.
 """
 
@@ -22,14 +22,20 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import T_PAPER, paper_cloud, paper_rotation, time_call, write_json
+from _common import T_PAPER, full_search, paper_cloud, paper_rotation, time_call, write_json
 
 import jaxpose as jp
 from jaxpose._estimate import STATUS_NAME, STATUS_TEXT, estimate_problem
 from jaxpose.evaluation.comparison import outcome_counts
 from jaxpose.sim import capture_pair
 
-PRESETS = ("fast", "accurate", "thorough")
+PRESETS = {"default": jp.Config, "fast": jp.Config.fast, "full_search": full_search}
+
+
+def capacity(points: int) -> jp.Capacities:
+    return jp.Capacities(max_points=points, max_prev_points=points)
+
+
 DEG_CM = np.array([180 / np.pi] * 3 + [100] * 3)
 
 
@@ -72,8 +78,7 @@ def paper_rows(name: str, config: jp.Config, repeats: int) -> list[dict]:
 
 
 def random_views(name: str, config: jp.Config, count: int = 16) -> dict:
-    """Accuracy and statuses of `config` on the random views (also used by
-    `experiments/fine_anchor.py`)."""
+    """Accuracy and statuses of `config` on the random views."""
     run = jax.jit(lambda pb, key: estimate_problem(pb, config, key))
     rot, shift, success, status, refused = [], [], [], [], 0
     for i in range(count):
@@ -113,10 +118,10 @@ def random_views(name: str, config: jp.Config, count: int = 16) -> dict:
 
 def main(repeats: int = 7, batches: tuple[int, ...] = (8,)):
     out = {}
-    for name in PRESETS:
-        config = getattr(jp.Config, name)(max_points=5120, max_prev_points=5120)
+    for name, preset in PRESETS.items():
+        config = preset(capacities=capacity(5120))
         out[name] = {"pairs": paper_rows(name, config, repeats)}
-        out[name]["random_views"] = random_views(name, getattr(jp.Config, name)(max_points=8192, max_prev_points=8192))
+        out[name]["random_views"] = random_views(name, preset(capacities=capacity(8192)))
         # Throughput of vmapped batches of pairs (one compile per batch size).
         prob = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant 2"), config)
         fn = jax.jit(jax.vmap(lambda pb, k, c=config: estimate_problem(pb, c, k)))
@@ -133,27 +138,5 @@ def main(repeats: int = 7, batches: tuple[int, ...] = (8,)):
     write_json("bench_estimate.json" if backend == "cpu" else f"bench_estimate_{backend}.json", out)
 
 
-CHEAPER = {
-    "default": {},
-    "fine_neighbours 12": {"fine_neighbours": 12},
-    "coarse_points 384": {"coarse_points": 384},
-    "population 12": {"population": 12},
-    "local_steps 6": {"local_steps": 6},
-    "fine_points 640": {"fine_points": 640},
-}
-"""Settings each cheaper than the default in one stage (`settings` mode)."""
-
-
-def settings(count: int = 48):
-    out = {}
-    for name, changes in CHEAPER.items():
-        views = random_views(name, jp.Config.accurate(max_points=8192, max_prev_points=8192, **changes), count)
-        out[name] = {"changes": changes, **views}
-    write_json("bench_settings.json", {"views": count, "settings": out})
-
-
 if __name__ == "__main__":
-    if sys.argv[1:] == ["settings"]:
-        settings()
-    else:
-        main(batches=tuple(int(b) for b in sys.argv[1:]) or (8,))
+    main(batches=tuple(int(b) for b in sys.argv[1:]) or (8,))

@@ -17,7 +17,7 @@ import time
 
 import jax
 import numpy as np
-from _common import write_json
+from _common import full_search, write_json
 from tumble_tracking import true_rates
 
 import jaxpose as jp
@@ -105,7 +105,7 @@ def main():
     camera = jp.Camera.camcube2(noise_sigma=NOISE)
     target = jp.targets.chibis_m()
     # The 2.5 m antenna span needs more than the default 128 cells per grid axis.
-    config = jp.Config.thorough(max_points=8192, grid_cells=192, max_cells=1024)
+    config = full_search(capacities=jp.Capacities(max_points=8192, grid_cells=192, max_cells=1024))
     rows, summary = error_vs_range(camera, target, config)
     print(summary)
     rate = angular_rate(camera, target, config)

@@ -48,8 +48,8 @@ def main():
     noisy = [rotated_pair(jax.random.key(i), math.radians(10), attitude=attitude, camera=camera)
              for i in range(NOISY_PAIRS)]  # fmt: skip
     out = {}
-    for fine in ("point_to_plane", "none"):
-        config = jp.Config.thorough(max_points=6144, fine=fine)
+    for fine, stage in (("default", jp.Config().fine), ("none", None)):
+        config = jp.Config(capacities=jp.Capacities(max_points=6144), fine=stage)
         paper = run(paper_pairs(), config, repeats=3)
         noise = run(noisy, config)
         rot = np.array([r["rotation_error_deg"] for r in noise])

@@ -22,7 +22,7 @@ from _common import paper_cloud
 import jaxpose as jp
 from jaxpose._estimate import estimate_problem
 batch = int(sys.argv[1])
-config = jp.Config.thorough(max_points=5120)
+config = jp.Config(capacities=jp.Capacities(max_points=5120))
 problem = jp.Problem.build(paper_cloud("n5", "previous"), paper_cloud("n5", "variant 2"), config)
 jax.block_until_ready(problem.r_field)
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -45,7 +45,7 @@ def main():
             for run in ("compiling", "warm cache"):
                 rows.append({"run": run, **run_child(CHILD, str(batch), cache)})
                 print(rows[-1])
-    write_json("memory.json", {"config": "thorough", "pair": "N5 previous → variant 2 (204 × 204)", "rows": rows})
+    write_json("memory.json", {"config": "default", "pair": "N5 previous → variant 2 (204 × 204)", "rows": rows})
 
 
 if __name__ == "__main__":

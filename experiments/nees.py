@@ -14,11 +14,12 @@ Consistent means: the validation mean NEES lies in the two-sided 95 % interval o
     uv run python experiments/nees.py  →  results/nees.json
 """
 
+import dataclasses
 import math
 
 import jax
 import numpy as np
-from _common import write_json
+from _common import NEAR_PLANE_FINE, full_search, write_json
 from scipy.stats import chi2
 
 import jaxpose as jp
@@ -29,7 +30,11 @@ from jaxpose.sim import paper_pose, rotated_pair
 
 PAIRS = 20  # per set
 # The centroid anchor of `Config.tracking()`, whose registrations the scale is used for.
-CONFIG = jp.Config.thorough(max_points=6144, recentre=0, fine_anchor="centroid")
+CONFIG = full_search(
+    6144,
+    search=dataclasses.replace(full_search().search, recentre=0),
+    fine=dataclasses.replace(NEAR_PLANE_FINE, anchor="centroid"),
+)
 
 
 def run(offset):

@@ -15,7 +15,7 @@ sys.path.insert(0, "experiments")
 from _common import paper_cloud
 import jaxpose as jp
 from jaxpose._estimate import estimate_problem
-config = jp.Config.thorough(max_points=5120)
+config = jp.Config(capacities=jp.Capacities(max_points=5120))
 out = {}
 for shape in ("n1", "n5"):
     for variant in ("variant 1", "variant 2"):
@@ -45,7 +45,7 @@ def main():
             }
         )
         print(rows[-1])
-    write_json("precision.json", {"config": "thorough", "key": 0, "rows": rows})
+    write_json("precision.json", {"config": "default", "key": 0, "rows": rows})
 
 
 if __name__ == "__main__":

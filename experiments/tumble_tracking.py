@@ -111,7 +111,7 @@ def main(
 ):
     camera = jp.Camera.camcube2(noise_sigma=noise)
     seq = simulate_sequence(camera, jp.targets.n5(), Tumble.n5(4.5), duration, rate_hz, key=jax.random.key(2 * seed))
-    config = getattr(jp.Config, preset)(max_points=6144)
+    config = getattr(jp.Config, preset)(capacities=jp.Capacities(max_points=6144))
     suffix = ("" if seed == 0 else f"_seed{seed}") + ("" if keyframe_every == 25 else f"_key{keyframe_every}")
     suffix += "" if preset == "tracking" else f"_{preset}"
     saved = RESULTS / f"tumble_chain{suffix}.npz"

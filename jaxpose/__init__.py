@@ -63,7 +63,9 @@ from .sim import Tumble as Tumble
 from .sim import simulate as simulate
 from .sim import simulate_sequence as simulate_sequence
 from .sim import targets as targets
+from .tracking import Dynamics as Dynamics
 from .tracking import Track as Track
+from .tracking import identify as identify
 from .tracking import track as track
 
 __all__ = [
@@ -71,6 +73,7 @@ __all__ = [
     "Capacities",
     "Cloud",
     "Config",
+    "Dynamics",
     "FineStage",
     "GlobalSearch",
     "Patterns",
@@ -86,6 +89,7 @@ __all__ = [
     "displacement_from_motion",
     "estimate",
     "hard_score",
+    "identify",
     "load_cloud",
     "motion_from_displacement",
     "plane_frame",

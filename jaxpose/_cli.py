@@ -104,7 +104,7 @@ def sweep(
     trials: Annotated[int, typer.Option(help="Random pairs per value.")] = 10,
     preset: Annotated[
         str, typer.Option(help="Config preset: default (also called accurate), fast, wide, tracking or paper.")
-    ] = "accurate",
+    ] = "default",
     seed: Annotated[int, typer.Option(help="PRNG seed of the pairs and the search.")] = 0,
     out: Annotated[Path, typer.Option(help="Folder for sweep_<preset>.{json,png}.")] = Path("results"),
     distributed: Annotated[
@@ -129,7 +129,7 @@ def sweep(
     if bad := [a for a in names if a not in AXES]:
         raise typer.BadParameter(f"unknown axes {bad}; choose from {', '.join(AXES)}.")
     _enable_compile_cache()
-    config = _preset(preset, max_cells=1024, grid_cells=160)
+    config = _preset(preset)
     with _progress() as bar:
         task = bar.add_task(f"sweep ({preset}, {trials} trials per value)", total=sum(len(AXES[a][1]) for a in names))
         results = run_sweep(names, trials, config, seed, progress=lambda: bar.advance(task))
@@ -159,7 +159,7 @@ def compare(
         str, typer.Option("--set", help="paper (the four pairs) or capture (random, 5–45°).")
     ] = "paper",
     pairs: Annotated[int, typer.Option(help="Number of capture pairs.")] = 100,
-    preset: Annotated[str, typer.Option(help="jaxpose preset (default: accurate for paper, wide for capture).")] = "",
+    preset: Annotated[str, typer.Option(help="jaxpose preset (default: default for paper, wide for capture).")] = "",
     seed: Annotated[int, typer.Option(help="PRNG seed of jaxpose's search.")] = 0,
     out: Annotated[Path, typer.Option(help="Folder for compare_<set>.{md,json}.")] = Path("results"),
 ):
@@ -178,10 +178,8 @@ def compare(
     if pair_set not in PAIR_SETS:
         raise typer.BadParameter(f"unknown set {pair_set!r}; choose one of {', '.join(PAIR_SETS)}.")
     _enable_compile_cache()
-    preset = preset or ("accurate" if pair_set == "paper" else "wide")
-    # Capacities: the paper's clouds fit the defaults; random attitudes need larger grids.
-    big = {"max_points": 10240, "max_cells": 1024, "grid_cells": 160}
-    config = _preset(preset, **({"max_points": 5120} if pair_set == "paper" else big))
+    preset = preset or ("default" if pair_set == "paper" else "wide")
+    config = _preset(preset)  # capacities sized from all the pairs (run_jaxpose)
     chosen = paper_pairs() if pair_set == "paper" else capture_pairs(pairs, seed=seed)
     peers, missing = available_peers()
     with _progress() as bar:
@@ -276,7 +274,7 @@ def bench(
 
 def _preset(name: str, **capacities: int):
     """The named Config preset ("default" or its older name "accurate", "fast", "paper", "wide",
-    "tracking") with the given capacities."""
+    "tracking") with the given capacities (those not given are sized from the data)."""
     from . import Capacities, Config
 
     presets = {

@@ -167,8 +167,8 @@ class GlobalSearch(eqx.Module):
 REFINE_TOL = 3e-4
 """The default refine's rtol = atol, in the solver's units of 1° and 1 cm: it stops BFGS within
 about 0.006° of a resting point; at 1e-5 the kinks of the neighbourhood max kept it
-zig-zagging to the step limit on half the paper's pairs with the same error
-(`experiments/local_tolerance.py`)."""
+zig-zagging to the step limit on half the paper's pairs with the same error (docs,
+Findings: the refine's tolerance)."""
 
 
 class Refine(eqx.Module):
@@ -199,8 +199,8 @@ class FineStage(eqx.Module):
       its neighbours); inf (the default): the whole visible surface. On the realistic
       benchmark's 28 pairs of `make_cases(1)` (every target, σ 0–2 cm) the whole surface with
       4096 points a side and centroid anchors found 24 against 18 with 896 near-plane points
-      (slabs of 3d / 2d, point anchors), with no false success against 2
-      (`experiments/realistic_settings.py`).
+      (slabs of 3d / 2d, point anchors), with no false success against 2 (docs, Findings:
+      the whole surface).
     - `inlier`: current points farther than this from every previous point are left out
       (metres): surface seen in only one cloud.
     - `planar_fraction`: fraction of the previous points kept, the most planar ones
@@ -218,13 +218,13 @@ class FineStage(eqx.Module):
       neighbourhood's centroid or through the point itself. With 1 cm range noise the point
       anchor biases registrations in proportion to the motion (the nearest match favours
       points that noise moved towards the current point) and the centroid removes most of it
-      (`experiments/fine_anchor.py`). Noise-free, the plane of a neighbourhood that spans an
+      (docs, Findings: the fine stage's anchor). Noise-free, the plane of a neighbourhood that spans an
       edge misses the surface by micrometres to millimetres.
     - `rounds`: most match-then-solve rounds (static).
     - `steps`, `tol`: Levenberg–Marquardt's step limit per round and its rtol = atol, in units
       of 1° and 1 cm (static). At 1e-4, on the paper's pairs × 3 keys every result is within
       0.00004° / 0.00004 cm of the truth, as at 1e-6, with a median of 14.5 steps against 35
-      (`experiments/local_tolerance.py fine`).
+      (docs, Findings: the fine stage's tolerance).
     """
 
     prev_slab: Scalar = math.inf

@@ -156,7 +156,7 @@ def smallest_eigen(
     largest = q + 2 * p * jnp.cos(angle)
     smallest = q + 2 * p * jnp.cos(angle + 2 * jnp.pi / 3)
     middle = 3 * q - largest - smallest
-    M = S - smallest[:, None, None] * jnp.eye(3, dtype=S.dtype)
+    M = S - smallest[:, None, None] * jnp.eye(3, dtype=S.dtype)[None]
     rows = M[:, 0], M[:, 1], M[:, 2]
     crosses = jnp.stack([jnp.cross(rows[0], rows[1]), jnp.cross(rows[0], rows[2]), jnp.cross(rows[1], rows[2])], 1)
     norms = jnp.linalg.norm(crosses, axis=2)
@@ -181,8 +181,9 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     nb, d2 = k_nearest(grid, P, min(stage.neighbours, K), NEIGHBOUR_SLOTS)
     found = jnp.isfinite(d2).astype(P.dtype)  # neighbours within the search's reach
     hood = P[:, nb]  # (3, K, k)
-    centroid = jnp.sum(hood * found, axis=2, keepdims=True) / jnp.maximum(jnp.sum(found, axis=1), 1)[:, None]
-    centred = (hood - centroid) * found
+    counts = jnp.maximum(jnp.sum(found, axis=1), 1)
+    centroid = jnp.sum(hood * found[None], axis=2, keepdims=True) / counts[None, :, None]
+    centred = (hood - centroid) * found[None]
     scatter = jnp.einsum("ikn,jkn->kij", centred, centred)
     smallest, middle, normal, defined = smallest_eigen(scatter)
     enough = (jnp.sum(found, axis=1) >= 3) & defined
@@ -198,7 +199,7 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     # averages the range noise of `FineStage.neighbours` points. Through the raw noisy point, the
     # nearest-neighbour match prefers previous points whose noise moved them towards the
     # current point, which biased registrations of N5 with 1 cm noise in proportion to the
-    # motion (experiments/fine_anchor.py). Matching and the inlier test use the points.
+    # motion (docs, Findings: the fine stage's anchor). Matching and the inlier test use the points.
     normal = normal.T
     anchor = centroid[:, :, 0] if stage.anchor == "centroid" else P
     offset = jnp.sum(normal * anchor, axis=0)
@@ -322,7 +323,7 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"]) -> FineResult
         def fn(y_, _):
             p_ = y_ * scale
             plane = root_w * _residuals(p_, b, matched, weight)
-            point = POINT_WEIGHT * root_w * (_moved(p_, b) - matched.points)
+            point = POINT_WEIGHT * root_w[None] * (_moved(p_, b) - matched.points)
             return plane / RESIDUAL_UNIT, point / RESIDUAL_UNIT
 
         sol = optx.least_squares(fn, solver, y, None, max_steps=config.fine.steps, throw=False)

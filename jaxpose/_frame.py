@@ -59,7 +59,7 @@ class PlaneFrame(eqx.Module):
 
     def to_frame(self, points: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
         """Camera-frame points (rows) → coordinates in frame n."""
-        return (points - self.origin) @ self.axes
+        return (points - self.origin[..., None, :]) @ self.axes
 
 
 def _sign_fix(v: Float[Array, "3"]) -> Float[Array, "3"]:
@@ -76,7 +76,7 @@ def plane_frame(cloud: Cloud) -> PlaneFrame:
     w = cloud.valid.astype(points.dtype)
     n = jnp.sum(w)
     origin = jnp.sum(points * w[:, None], axis=0) / jnp.maximum(n, 1.0)
-    X = (points - origin) * w[:, None]
+    X = (points - origin[None]) * w[:, None]
     C = X.T @ X
     J = jnp.trace(C) * jnp.eye(3, dtype=C.dtype) - C
     evals, evecs = jnp.linalg.eigh(J)  # ascending

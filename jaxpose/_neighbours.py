@@ -100,7 +100,7 @@ def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Can
     points = points.reshape(S, 9, 3, slots)
     real = (keys.reshape(S, 9, slots) >= first[..., None]) & (keys.reshape(S, 9, slots) <= last[..., None])
     d2 = sum((points[:, :, k, :] - queries[k][:, None, None]) ** 2 for k in range(3))
-    sorted_index = start.reshape(S, 9)[..., None] + jnp.arange(slots)
+    sorted_index = start.reshape(S, 9)[..., None] + jnp.arange(slots)[None, None]
     return Candidates(sorted_index.reshape(S, -1), real.reshape(S, -1), jnp.where(real, d2, jnp.inf).reshape(S, -1))
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import equinox as eqx
@@ -198,6 +199,15 @@ def sized_sequence_config(clouds: Cloud, config: Config) -> Config:
     Python boundary only."""
     counts, grids, selected = eqx.filter_vmap(lambda c: _pattern_sizes(c, config))(clouds)
     return _filled(config, int(jnp.max(counts)), int(jnp.max(grids)), int(jnp.max(selected)))
+
+
+def sized_batch_config(pairs: Sequence[tuple[Cloud, Cloud]], config: Config) -> Config:
+    """`config` sized for a batch of (previous, current) pairs that run under one compiled
+    program (a vmapped or sharded batch): the largest valid count, pattern grid and pattern
+    selection over the pairs, rounded as [`sized_config`][]. Python boundary only."""
+    sizes = [tuple(int(x) for x in _pattern_sizes(prev, config)) for prev, _ in pairs]
+    counts = [n for n, _, _ in sizes] + [int(np.sum(np.asarray(curr.valid))) for _, curr in pairs]
+    return _filled(config, max(counts), max(g for _, g, _ in sizes), max(s for _, _, s in sizes))
 
 
 def _filled(config: Config, points: int, grid: int, selected: int) -> Config:

@@ -71,9 +71,12 @@ def global_search(problem: Problem, config: Config, key: PRNGKeyArray, start=Non
     def generation(carry, k):
         state = carry
         k_ask, k_tell = jax.random.split(k)
-        ys, state = es.ask(k_ask, state, params)
+        # evosax broadcasts (6,) against (population, 6) inside ask/tell; our own code does not.
+        with jax.numpy_rank_promotion("allow"):
+            ys, state = es.ask(k_ask, state, params)
         f = score_batch(jax.vmap(to_p)(ys), scored, config.search.objective)
-        state, _ = es.tell(k_tell, ys, -f, state, params)
+        with jax.numpy_rank_promotion("allow"):
+            state, _ = es.tell(k_tell, ys, -f, state, params)
         return state, jnp.max(f)
 
     state, history = jax.lax.scan(generation, state, jax.random.split(key, config.search.generations))

@@ -8,6 +8,8 @@ import tempfile
 import jax
 
 jax.config.update("jax_enable_x64", True)
+# Implicit rank promotion ((N, 3) − (3,)) is an error in the tests, as in optimistix.
+jax.config.update("jax_numpy_rank_promotion", "raise")
 # The package's annotations are checked at run time (jaxtyping + beartype, pyproject's addopts).
 # One persistent compilation cache per test session, empty at its start, so the notebooks'
 # kernels (which inherit the environment) reuse each other's compiles.

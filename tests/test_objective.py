@@ -193,7 +193,7 @@ def test_soft_maximiser_is_closer_to_truth_than_hard(paper_clouds, variant):
         throw=False,
     )
     p_soft = sol.value * scale
-    ps = truth + jax.random.uniform(jax.random.key(0), (20000, 6), minval=-1, maxval=1) * scale
+    ps = truth[None] + jax.random.uniform(jax.random.key(0), (20000, 6), minval=-1, maxval=1) * scale[None]
     p_hard = ps[jnp.argmax(score_batch(ps, problem, "hard"))]
 
     def error(p):

@@ -45,5 +45,5 @@ def test_relative_motion_agrees_with_jaxlie():
 
     x = rng.normal(size=(4, 3))
     R, t = poses.relative_motion(R1, t1, R2, t2)
-    want = (se3(R2, t2) @ se3(R1, t1).inverse()).apply(jnp.asarray(x))
+    want = jax.vmap((se3(R2, t2) @ se3(R1, t1).inverse()).apply)(jnp.asarray(x))
     np.testing.assert_allclose(np.asarray(x @ np.asarray(R).T + np.asarray(t)), np.asarray(want), atol=1e-12)

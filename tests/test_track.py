@@ -69,7 +69,7 @@ def _drifting_chain(rate0, spin_accel, dt=0.04, frames=251):
     # The tracked point (on the rotation axis, as a centroid is) starts 5.5 m ahead and moves at
     # 1 cm/s along z. Keyframe every 25 frames; the relative measurements keyframe → k.
     origin = jnp.array([0.2, -0.1, 5.5])
-    points = origin + jnp.outer(t, jnp.array([0.0, 0.0, 0.01]))
+    points = origin[None] + jnp.outer(t, jnp.array([0.0, 0.0, 0.01]))
     translations = points - jax.vmap(lambda Rk: Rk @ origin)(R)
     k = jnp.arange(frames)
     key = jnp.where(k % 25 == 0, k - 25, (k // 25) * 25).clip(0)  # measured from the last keyframe
@@ -78,7 +78,7 @@ def _drifting_chain(rate0, spin_accel, dt=0.04, frames=251):
     cov = jnp.broadcast_to(jnp.eye(6) * 1e-8, (frames, 6, 6))
     status = jnp.zeros(frames, jnp.int32)
     chain = Chain(R, translations, points, status, origin, R_rel, t_rel, cov, k % 25 == 0)
-    return chain, (rate0 + spin_accel * t)[:, None] * axis, points
+    return chain, (rate0 + spin_accel * t)[:, None] * axis[None], points
 
 
 def test_filter_follows_a_drifting_rate_that_the_constant_rate_model_lags():

@@ -27,7 +27,7 @@ from .._config import Config
 from .._estimate import STATUS_NAME, estimate_problem
 from .._frame import plane_frame
 from .._poses import displacement_from_motion
-from .._problem import Problem
+from .._problem import Problem, sized_batch_config
 from .._rotations import rotation_angle
 from ..sim._scenarios import Pair
 
@@ -53,7 +53,10 @@ def run_jaxpose(
     pairs: list[Pair], config: Config, seed: int = 0, progress: Callable[[], None] | None = None, repeats: int = 1
 ):
     """`estimate` on each pair (key = (seed, i)); returns the rows and the compile time (s).
-    A pair's time is the median of `repeats` runs."""
+    A pair's time is the median of `repeats` runs. Capacities the config leaves at None are
+    sized once from all the pairs, so that one compiled program serves them all and no timed
+    call compiles."""
+    config = sized_batch_config([(pair.prev, pair.curr) for pair in pairs], config)
     rows, compile_s = [], None
     for i, pair in enumerate(pairs):
         key = jax.random.fold_in(jax.random.key(seed), i)

@@ -27,8 +27,8 @@ def box_distance(points: Float[Array, "N 3"], boxes: Boxes) -> Float[Array, " N"
     (negative inside): the minimum over boxes of each box's exact signed distance."""
 
     def one(center, half, rotation):
-        local = (points - center) @ rotation  # box frame
-        q = jnp.abs(local) - half
+        local = (points - center[None]) @ rotation  # box frame
+        q = jnp.abs(local) - half[None]
         sq = jnp.sum(jnp.maximum(q, 0.0) ** 2, axis=-1)
         outside = jnp.where(sq > 0, jnp.sqrt(jnp.where(sq > 0, sq, 1.0)), 0.0)  # finite gradient at 0
         inside = jnp.minimum(jnp.max(q, axis=-1), 0.0)
@@ -63,7 +63,7 @@ def fit_model(cloud: Cloud, model: Boxes, R0, t0, max_steps: int = 100) -> Model
 
     def residuals(y, _):
         R, t = pose(y)
-        return jnp.where(valid, box_distance((x - t) @ R, model), 0.0)
+        return jnp.where(valid, box_distance((x - t[None]) @ R, model), 0.0)
 
     solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-10)
     result = optx.least_squares(residuals, solver, jnp.zeros(6, x.dtype), None, max_steps=max_steps, throw=False)

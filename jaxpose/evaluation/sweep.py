@@ -13,7 +13,6 @@ success; a *false success* is reported as a success but ≥ 1° off.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import statistics
 from collections.abc import Callable
@@ -22,9 +21,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .._config import Capacities, Config
+from .._config import Config
 from .._estimate import SUCCESS
-from .._problem import Problem
+from .._problem import Problem, sized_batch_config
 from .._scale import estimate_sharded
 from ..sim._camera import Camera
 from ..sim._scenarios import paper_pose, rotated_pair
@@ -57,9 +56,8 @@ def sweep_value(axis: str, value: float, trials: int, config: Config, seed: int 
     # Keys from the axis and the value itself (in thousandths), not its place in the list.
     base = jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), list(AXES).index(axis)), round(1000 * value))
     pairs = [_pair(axis, value, jax.random.fold_in(base, j)) for j in range(trials)]
-    # One static capacity for the batch: the largest cloud, rounded up to 2048 points (few compiles).
-    most = max(int(p.curr.valid.sum()) for p in pairs)
-    config = dataclasses.replace(config, capacities=Capacities(max_points=2048 * math.ceil(most / 2048)))
+    # One program for the batch: capacities sized from all its pairs.
+    config = sized_batch_config([(p.prev, p.curr) for p in pairs], config)
     usable, problems, unusable = [], [], []
     for p in pairs:
         try:

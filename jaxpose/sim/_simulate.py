@@ -47,7 +47,7 @@ def _box_ranges(boxes: Boxes, R, t, rays) -> Float[Array, " P"]:
 
 def _mesh_ranges(mesh: Mesh, R, t, rays) -> Float[Array, " P"]:
     """Distance along each unit ray to its first triangle hit (Möller–Trumbore, two-sided)."""
-    tris = mesh.triangles @ R.T + t  # (T, 3, 3) in the camera frame
+    tris = mesh.triangles @ R.T + t[None, None]  # (T, 3, 3) in the camera frame
     pad = (-tris.shape[0]) % _TRIANGLE_CHUNK
     tris = jnp.concatenate([tris, jnp.zeros((pad, 3, 3), tris.dtype)])  # degenerate: no hits
     dx, dy, dz = (r[None, :] for r in rays)

@@ -1,10 +1,19 @@
-"""Tracking: registration of a sequence of clouds, chained against keyframes and filtered.
+"""Tracking: registration of a sequence of clouds, chained against keyframes and filtered,
+and the target's dynamics identified from the result.
 
 `track(clouds, dt, key=...)` registers each frame against a keyframe with the method core,
 then runs an error-state Kalman filter on SO(3) × R³ that gives attitude, angular rate and
 acceleration, and the position and velocity of the first cloud's plane-frame origin.
+`identify(track, dt)` fits Euler's equations to the registrations: principal axes, inertia
+ratios, rate and centre of mass, with a prediction past the data.
 """
 
+from ._identify import (
+    Dynamics as Dynamics,
+)
+from ._identify import (
+    identify as identify,
+)
 from ._track import (
     FILTER_BAD_MEASUREMENT as FILTER_BAD_MEASUREMENT,
 )

@@ -281,7 +281,14 @@ class Track(eqx.Module):
     the `status` of its estimate, and the filtered `attitude`, `rate` (rad/s, frame c),
     `spin_accel` (rad/s², frame c), `position`, `velocity`, the filter's `rate_std`
     (rad/s, per axis) and its own per-frame `filter_status` (`FILTER_STATUS_NAME`: whether the
-    frame's measurement was fused, or why not). Every filtered output is finite."""
+    frame's measurement was fused, or why not). Every filtered output is finite.
+
+    The registrations themselves: frame k was registered against frame `keyframes[k]` (frame
+    0 against itself), so the measurement keyframe → k is R_0k R_0jᵀ for j = `keyframes[k]`,
+    with the covariance `measurement_cov[k]` (6, 6; a left rotation vector in rad, then the
+    translation in m; from the fine stage, as `Chain.relative_cov`). Frames registered
+    against one keyframe share its noise; chaining adds each keyframe's error to all later
+    frames. [`jaxpose.identify`][] uses these."""
 
     rotations: Float[Array, "T 3 3"]
     points: Float[Array, "T 3"]
@@ -293,6 +300,8 @@ class Track(eqx.Module):
     velocity: Float[Array, "T 3"]
     rate_std: Float[Array, "T 3"]
     filter_status: Int[Array, " T"]
+    keyframes: Int[Array, " T"]
+    measurement_cov: Float[Array, "T 6 6"]
 
 
 class KeyframeFilter(eqx.Module):
@@ -479,7 +488,17 @@ def filter_chain(
     _, outs = jax.lax.scan(step, filt, (chain.rotations[1:], chain.points[1:], chain.status[1:]))
     head = (*_row(filt), jnp.asarray(FILTER_UPDATED, jnp.int32))
     filtered = (jnp.concatenate([h[None], o]) for h, o in zip(head, outs, strict=True))
-    return Track(chain.rotations, chain.points, chain.status, *filtered)
+    return Track(
+        chain.rotations, chain.points, chain.status, *filtered, keyframe_indices(chain.switched), chain.relative_cov
+    )
+
+
+def keyframe_indices(switched: Bool[Array, " T"]) -> Int[Array, " T"]:
+    """For each frame k, the keyframe it was registered against: the last frame j < k that
+    became a keyframe (`switched`); 0 for frame 0."""
+    index = jnp.arange(switched.shape[0])
+    last = jax.lax.cummax(jnp.where(switched, index, 0))
+    return jnp.concatenate([jnp.zeros(1, last.dtype), last[:-1]])
 
 
 def filter_keyframes(
@@ -531,7 +550,9 @@ def filter_keyframes(
     _, outs = jax.lax.scan(step, filt, jax.tree.map(lambda x: x[1:], inputs))
     head = (*_row(filt.now), jnp.asarray(FILTER_UPDATED, jnp.int32))
     filtered = (jnp.concatenate([h[None], o]) for h, o in zip(head, outs, strict=True))
-    return Track(chain.rotations, chain.points, chain.status, *filtered)
+    return Track(
+        chain.rotations, chain.points, chain.status, *filtered, keyframe_indices(chain.switched), chain.relative_cov
+    )
 
 
 def _row(filt: TrackFilter):

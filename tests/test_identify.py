@@ -1,0 +1,133 @@
+"""`identify`: Euler's equations fitted to a tracked motion (torque-free, inertial camera).
+
+Exact measurements come from the simulator's own integration of the tumble (`tumble_poses`,
+diffrax Dopri8 on the full inertia tensor), independent of the identification's model
+(Tsit5 in principal axes)."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+import pytest
+
+import jaxpose as jp
+from jaxpose.sim import Tumble
+from jaxpose.sim._sequence import tumble_poses
+from jaxpose.tracking._identify import identify_motion
+from jaxpose.tracking._track import Track, keyframe_indices
+
+DT, SECONDS, KEYFRAME_EVERY = 0.1, 30.0, 10
+
+
+def tumble(seed: int, spin_axis=None) -> Tumble:
+    """A random torque-free tumble (3–8 °/s), the centre drifting at a few cm/s."""
+    base = Tumble.random(jax.random.key(seed), rates_deg_s=(3.0, 8.0))
+    base = eqx.tree_at(lambda t: t.velocity, base, jnp.array([0.01, -0.02, 0.005]))
+    if spin_axis is not None:  # a spin about one principal axis: nothing excites the inertia
+        base = eqx.tree_at(lambda t: t.rate, base, jnp.radians(5.0) * jnp.asarray(spin_axis, float))
+    return base
+
+
+def truth(target: Tumble, times):
+    """The motions from the first frame (R_k, t_k), and the dynamics in frame c at t = 0."""
+    G, positions, rates = tumble_poses(target, times)
+    R = jnp.einsum("tij,kj->tik", G, G[0])
+    t = positions - jnp.einsum("tij,j->ti", R, positions[0])
+    moments = jnp.diag(target.inertia)
+    order = jnp.argsort(moments)
+    return R, t, G[0][:, order], moments[order] / moments[order][2], positions[0], G[0] @ rates[0]
+
+
+def measurements(target: Tumble):
+    times = jnp.arange(int(round(SECONDS / DT)) + 1) * DT
+    R, t, *expected = truth(target, times)
+    switched = jnp.arange(times.shape[0]) % KEYFRAME_EVERY == 0
+    return times, R, t, keyframe_indices(switched), expected
+
+
+def axis_angles(found, expected):
+    """Angle (rad) between each found principal axis and the true one (sign-free)."""
+    cosines = jnp.abs(jnp.sum(found * expected, axis=0))
+    return np.arccos(np.clip(np.asarray(cosines), -1.0, 1.0))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_exact_measurements_recover_the_dynamics(seed):
+    target = tumble(seed)
+    times, R, t, references, (axes, moments, centre, omega) = measurements(target)
+    valid = jnp.ones(times.shape[0], bool)
+    d = identify_motion(times, R, t, valid, references, None, 5)
+    np.testing.assert_allclose(d.inertia_ratios, moments[:2], rtol=1e-4)
+    assert axis_angles(d.principal_axes, axes).max() < 1e-4
+    np.testing.assert_allclose(d.omega, omega, atol=1e-7)
+    np.testing.assert_allclose(d.centre, centre, atol=1e-6)
+    np.testing.assert_allclose(d.velocity, target.velocity, atol=1e-7)
+    assert bool(d.observable) and float(d.excitation) > np.radians(2)
+    assert np.isclose(float(jnp.linalg.det(d.principal_axes)), 1.0)
+    assert bool(jnp.all(jnp.isfinite(d.covariance)))
+
+
+def test_prediction_past_the_data_follows_the_truth():
+    target = tumble(0)
+    times, R, t, references, (_, _, centre, _) = measurements(target)
+    d = identify_motion(times, R, t, jnp.ones(times.shape[0], bool), references, None, 5)
+    later = jnp.array([0.0, 10.0, SECONDS, SECONDS + 10.0])
+    R_true, t_true, *_ = truth(target, later)
+    R_pred, t_pred = d.predict(later)
+    angles = [float(jp.rotation_angle(a, b)) for a, b in zip(R_pred, R_true, strict=True)]
+    assert max(angles) < 1e-6
+    np.testing.assert_allclose(t_pred, t_true, atol=1e-6)
+    # A point 1 m from the centre: its path 10 s past the data, with a finite spread.
+    point = centre + jnp.array([1.0, 0.0, 0.0])
+    positions, std = d.predict_point(point, later)
+    np.testing.assert_allclose(positions, R_true @ point + t_true, atol=1e-6)
+    assert positions.shape == std.shape == (4, 3) and bool(jnp.all(jnp.isfinite(std)))
+
+
+def test_noisy_measurements_give_an_honest_covariance():
+    """1 mrad of rotation noise per frame: the ratios land within a few of their standard
+    deviations, and the standard deviations are not zero."""
+    target = tumble(0)
+    times, R, t, references, (axes, moments, _, _) = measurements(target)
+    noise = jax.random.normal(jax.random.key(7), (times.shape[0], 3)) * 1e-3
+    noisy = jax.vmap(lambda v, M: jaxlie.SO3.exp(v).as_matrix() @ M)(noise, R)
+    d = identify_motion(times, noisy, t, jnp.ones(times.shape[0], bool), references, None, 5)
+    std = np.sqrt(np.diag(np.asarray(d.covariance)))[3:5]
+    assert np.all(std > 0)
+    assert np.all(np.abs(np.asarray(d.inertia_ratios - moments[:2])) < 5 * std + 1e-3)
+
+
+def test_spin_about_a_principal_axis_is_not_observable():
+    target = tumble(1, spin_axis=(0.0, 0.0, 1.0))  # body z is a principal axis (diagonal inertia)
+    times, R, t, references, _ = measurements(target)
+    d = identify_motion(times, R, t, jnp.ones(times.shape[0], bool), references, None, 5)
+    assert not bool(d.observable)
+    assert float(d.excitation) < np.radians(0.1)
+
+
+def test_identify_checks_its_input():
+    T = 40
+    eye = jnp.broadcast_to(jnp.eye(3), (T, 3, 3))
+    zeros = jnp.zeros((T, 3))
+    status = jnp.zeros(T, jnp.int32).at[5:].set(2)  # 5 successes only
+    track = Track(
+        eye, zeros, status, eye, zeros, zeros, zeros, zeros, zeros, status, jnp.zeros(T, jnp.int32),
+        jnp.broadcast_to(jnp.eye(6), (T, 6, 6)),
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="dt"):
+        jp.identify(track, -1.0)
+    with pytest.raises(ValueError, match="at least"):
+        jp.identify(track, 0.1)
+    short = jax.tree.map(lambda x: x[:6], track)
+    short = eqx.tree_at(lambda tr: tr.status, short, jnp.zeros(6, jnp.int32))
+    with pytest.raises(ValueError, match="at least|too short"):
+        jp.identify(short, 0.1)
+
+
+def test_identify_runs_under_jit():
+    target = tumble(2)
+    times, R, t, references, (_, moments, _, _) = measurements(target)
+    fn = jax.jit(lambda R_, t_: identify_motion(times, R_, t_, jnp.ones(times.shape[0], bool), references))
+    d = fn(R, t)
+    np.testing.assert_allclose(d.inertia_ratios, moments[:2], rtol=1e-4)
