@@ -17,8 +17,9 @@ m/s) of a tracked point (frame 0's plane origin O_n, moved with the target). Why
 tumbling about a non-principal axis keeps its angular momentum, not its angular velocity;
 for N5 at 4.5 °/s the apparent ω drifts by ≈ 0.06 °/s per second, which a constant-rate
 model follows only with a lag (measured: 0.25 °/s error after 10 s). The shape, hence the
-inertia, is unknown, so Euler's equations cannot be used; a constant-acceleration model with
-a random walk on α follows a smooth drift without lag.
+inertia, is unknown while the filter runs, so it cannot use Euler's equations; a
+constant-acceleration model with a random walk on α follows a smooth drift without lag.
+[`jaxpose.identify`][] fits Euler's equations to the whole track afterwards.
 
 **Default filter** ([`KeyframeFilter`][], [`filter_keyframes`][]): the keyframe's pose is
 cloned into the state (stochastic cloning) and each estimate keyframe → k is fused with its
@@ -26,7 +27,7 @@ own fine-stage covariance. Half of that covariance is carried by the clone, beca
 registration against one keyframe shares that keyframe cloud's noise: a chained filter
 reads the jump at each switch as motion. On the N5 tumbles of
 `experiments/tumble_tracking.py` (4.5 °/s, 5.5 m, 1 cm noise, `Config.tracking()`) its rate
-error after 10 s was 0.010–0.046 °/s over six noise seeds (README, "Tracking").
+error after 10 s was 0.010–0.046 °/s over six noise seeds (docs, Tracking).
 
 **Chained filter** ([`filter_chain`][]): the chained poses (R_0k, R_0k O_n + t_0k) as
 measurements with a fixed noise; simpler, and 0.045–0.073 °/s on the same registrations.
