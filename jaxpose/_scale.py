@@ -24,7 +24,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import AxisType, Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
-from jaxtyping import PRNGKeyArray
+from jaxtyping import Array, Key
 
 from ._config import Config
 from ._estimate import Estimate, estimate_problem
@@ -43,7 +43,7 @@ def _estimate_batch(problems: Problem, config: Config, key_data) -> Estimate:
     return jax.vmap(lambda pb, k: estimate_problem(pb, config, k))(problems, keys)
 
 
-def estimate_sharded(problems: Problem, config: Config, keys: PRNGKeyArray, mesh: Mesh | None = None) -> Estimate:
+def estimate_sharded(problems: Problem, config: Config, keys: Key[Array, " B"], mesh: Mesh | None = None) -> Estimate:
     """[`estimate_problem`][] over a batch of problems (leading axis B) and keys `(B,)`,
     sharded over the mesh's "batch" axis.
 
