@@ -260,14 +260,22 @@ class Thresholds(eqx.Module):
       2 cm range noise correct results scored 0.75–0.79.
     - `max_range`: clouds with a point farther than this from the camera (metres) are refused
       at the Python boundary (wrong units or garbage, not lidar returns).
+    - `ambiguous_deg`: with `FineStage.from_rest`, the two surface fits (from the pattern
+      search's result and from rest) that explain the current cloud equally well (inlier
+      fractions within 0.01) but whose rotations differ by more than this (degrees) make the
+      estimate `Status.ambiguous`. On the realistic subset (3 pairs per target and noise
+      level) such pairs were the upper stage's turns about its long axis, where the two fits
+      were 7–14° apart and one of them wrong.
     """
 
     min_score: Scalar = 0.7
     max_range: Scalar = 1000.0
+    ambiguous_deg: Scalar = 1.0
 
     def __check_init__(self):
         _check_range("Thresholds", "min_score", self.min_score, 0.0, 1.0, closed_low=True)
         _check_range("Thresholds", "max_range", self.max_range, 0.0, math.inf)
+        _check_range("Thresholds", "ambiguous_deg", self.ambiguous_deg, 0.0, 180.0)
 
 
 _LEGACY = {

@@ -201,5 +201,32 @@ def test_one_status_vocabulary(n5_estimate):
     assert bool(est.success) == (int(est.status) == SUCCESS) == bool(est.result == jp.Status.success)
     assert STATUS_TEXT[NOT_CONVERGED] == jp.Status[jp.Status.not_converged]
     assert STATUS_TEXT[AT_BOX_EDGE] == jp.Status[jp.Status.at_box_edge]
-    assert set(STATUS_TEXT) == set(range(6))
+    assert set(STATUS_TEXT) == set(range(7))
+    assert not bool(est.ambiguous) and np.all(np.isfinite(np.asarray(est.alternative)))
     assert est.stats["evaluations"] == est.search.evaluations and est.stats["fine_steps"] == est.fine.steps
+
+
+def _fine_result(angles_deg, inliers):
+    from jaxpose._fine import FineResult
+
+    p = jnp.asarray([*np.radians(angles_deg), 0.0, 0.0, 0.0])
+    return FineResult(p, jnp.asarray(True), jnp.asarray(5), jnp.asarray(inliers), jnp.asarray(0.003), jnp.asarray(900))
+
+
+@pytest.mark.parametrize(
+    "b_angles, b_inliers, expected",
+    [
+        ((0.0, 0.0, 14.0), 0.675, True),  # a turn about a symmetry axis that fits as well
+        ((0.0, 0.0, 14.0), 0.60, False),  # the first explains clearly more of the cloud
+        ((0.3, 0.0, 0.5), 0.67, False),  # the same motion within 1°
+        ((0.0, -1.2, 0.0), 0.67, True),
+    ],
+)
+def test_two_equally_good_fits_far_apart_are_ambiguous(b_angles, b_inliers, expected):
+    from jaxpose._estimate import equally_good_and_apart
+
+    a = _fine_result((0.0, 0.0, 0.0), 0.67)
+    b = _fine_result(b_angles, b_inliers)
+    config = jp.Config()
+    assert bool(equally_good_and_apart(a, b, config)) == expected
+    assert bool(equally_good_and_apart(b, a, config)) == expected

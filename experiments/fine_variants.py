@@ -1,0 +1,110 @@
+"""Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
+
+`uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]`
+
+`--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
+one compiled program per variant (capacities sized once for all pairs, so times are those of
+the largest bucket, not of the public call). Prints, per variant and noise level: found (< 1°
+and < 5 cm), successes, false successes, median rotation and centroid errors and median time;
+then the pairs not found. The table is printed, not committed (docs, Findings: the fine
+stage's anchor on the realistic benchmark).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import time
+
+import equinox as eqx
+import jax
+
+import jaxpose as jp
+from jaxpose import _fine
+from jaxpose._estimate import _build_and_estimate
+from jaxpose._problem import sized_batch_config
+from jaxpose.evaluation import realistic
+
+
+def gicp_rows(cases):
+    rows = []
+    for case in cases:
+        t0 = time.perf_counter()
+        R, t = realistic.gicp(case.prev.compact(), case.curr.compact())
+        rows.append({**realistic.errors(case, R, t), "ms": 1e3 * (time.perf_counter() - t0)})
+    return rows
+
+
+def jaxpose_rows(cases, config):
+    """Every case through one compiled build-and-estimate; the compile time apart."""
+    jax.clear_caches()  # the variants below change module constants read at trace time
+    config = sized_batch_config([(c.prev, c.curr) for c in cases], config)
+    run = eqx.filter_jit(_build_and_estimate)
+    t0 = time.perf_counter()
+    jax.block_until_ready(run(cases[0].prev, cases[0].curr, config, jax.random.key(0)))
+    compile_s = time.perf_counter() - t0
+    rows = []
+    for i, case in enumerate(cases):
+        t0 = time.perf_counter()
+        est, _, _ = jax.block_until_ready(run(case.prev, case.curr, config, jax.random.fold_in(jax.random.key(0), i)))
+        ms = 1e3 * (time.perf_counter() - t0)
+        rows.append({**realistic.errors(case, est.rotation, est.translation), "ms": ms, "status": int(est.status)})
+    return rows, compile_s
+
+
+def report(name, cases, rows, gicp, compile_s, levels):
+    def med(sel, key):
+        return statistics.median(r[key] for r in sel)
+
+    print(f"== {name} (compile {compile_s:.1f} s)")
+    for sigma in levels:
+        idx = [i for i, c in enumerate(cases) if c.sigma_cm == sigma]
+        ours, peer = [rows[i] for i in idx], [gicp[i] for i in idx]
+        false = sum(r["status"] == 0 and not r["found"] for r in ours)
+        print(
+            f"  σ {sigma} cm: jaxpose found {sum(r['found'] for r in ours)}/{len(ours)}, "
+            f"success {sum(r['status'] == 0 for r in ours)}, false {false}, "
+            f"rot {med(ours, 'rotation_error_deg'):.4f}°, centroid {med(ours, 'centroid_error_cm'):.4f} cm, "
+            f"{med(ours, 'ms'):.0f} ms | GICP found {sum(r['found'] for r in peer)}, "
+            f"rot {med(peer, 'rotation_error_deg'):.4f}°, centroid {med(peer, 'centroid_error_cm'):.4f} cm, "
+            f"{med(peer, 'ms'):.0f} ms"
+        )
+    missed = [
+        f"{c.label}: {r['rotation_error_deg']:.2f}°, {r['centroid_error_cm']:.2f} cm, status {r['status']}"
+        for c, r in zip(cases, rows, strict=True)
+        if not r["found"]
+    ]
+    print("  not found:", "; ".join(missed) or "none")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--pairs", type=int, default=3)
+    parser.add_argument("--levels", default="0,0.5,1,2")
+    args = parser.parse_args()
+    levels = tuple(float(x) for x in args.levels.split(","))
+    cases = realistic.make_cases(pairs=args.pairs, levels=levels)
+    gicp = gicp_rows(cases)
+    default = jp.Config()
+    point = dataclasses.replace(default, fine=dataclasses.replace(default.fine, anchor="point"))
+    variants = [
+        ("default", default, {}),
+        ("planes through the points", point, {}),
+        ("no noise-free polish", default, {"EXACT_RMS": 0.0}),
+        ("no within-the-noise stop", default, {"NOISE_STEP": 0.0}),
+    ]
+    for name, config, constants in variants:
+        saved = {k: getattr(_fine, k) for k in constants}
+        for k, v in constants.items():
+            setattr(_fine, k, v)
+        try:
+            rows, compile_s = jaxpose_rows(cases, config)
+        finally:
+            for k, v in saved.items():
+                setattr(_fine, k, v)
+        report(name, cases, rows, gicp, compile_s, levels)
+
+
+if __name__ == "__main__":
+    main()
