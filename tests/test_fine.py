@@ -168,6 +168,30 @@ def test_a_noisy_pair_converges_to_its_noise_floor(camera):
     assert np.degrees(err[:3]).max() < 0.5 and 100 * err[3:].max() < 0.5, err
 
 
+def test_the_normal_equations_solver_gives_the_qr_result(monkeypatch):
+    """The fine stage solves its damped steps by Cholesky on JᵀJ + λI (`least_squares_solver`)
+    for speed; on a noisy whole-surface pair it must land where optimistix's default QR of the
+    stacked [J; √λ I] lands (float64)."""
+    import optimistix as optx
+
+    from jaxpose import _fine
+
+    noisy = jp.Camera.camcube2(noise_sigma=0.01)
+    keys = jax.random.split(jax.random.key(7))
+    R1, R2 = paper_rotation("previous"), paper_rotation("variant2")
+    prev = jp.simulate(noisy, jp.targets.n5(), R1, jnp.asarray(T_PAPER), key=keys[0])
+    curr = jp.simulate(noisy, jp.targets.n5(), R2, jnp.asarray(T_PAPER), key=keys[1])
+    config = jp.Config()
+    problem = jp.Problem.build(prev, curr, config)
+    truth = jp.true_displacement(problem.frame, R1, T_PAPER, R2, T_PAPER)
+    start = truth + jnp.array([np.radians(1.0), 0.0, -np.radians(1.0), 0.01, 0.0, -0.01])
+    normal = jax.jit(lambda s: fine_refine(problem, config, s))(start)
+    monkeypatch.setattr(_fine, "least_squares_solver", lambda tol: optx.LevenbergMarquardt(rtol=tol, atol=tol))
+    qr = jax.jit(lambda s: fine_refine(problem, config, s))(start)
+    assert bool(normal.converged) and bool(qr.converged)
+    np.testing.assert_allclose(np.asarray(normal.params), np.asarray(qr.params), atol=1e-6)
+
+
 def test_the_fine_result_is_kept_only_within_the_search_reach():
     from jaxpose._estimate import within_reach
 
