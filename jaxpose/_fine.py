@@ -333,8 +333,8 @@ def least_squares_solver(tol: float) -> optx.LevenbergMarquardt:
     The fine stage's Jacobian is tall and thin (thousands of residuals, 6 unknowns): optimistix's
     default QR of the stacked [J; √λ I] costs more than forming the 6 × 6 system. On the
     realistic benchmark's 28 pairs of `make_cases(1)` the public call's median fell from 314
-    to 184 ms with the same errors on every pair (docs, Findings: the fine stage's linear
-    solver). The damping keeps the system positive definite where a direction is free."""
+    to 184 ms with the same errors on every pair (docs, Findings: cheaper stages of the public
+    call). The damping keeps the system positive definite where a direction is free."""
     return optx.LevenbergMarquardt(rtol=tol, atol=tol, linear_solver=lx.Normal(lx.Cholesky()))
 
 

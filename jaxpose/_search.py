@@ -19,6 +19,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._batch import score_batch
 from ._config import Config
+from ._neighbours import spread_subset
 from ._objective import soft_score
 from ._poses import PARAMETER_SCALE
 from ._problem import Problem
@@ -182,9 +183,22 @@ class LocalResult(eqx.Module):
     steps: Int[Array, ""]
 
 
+def thinned_current(problem: Problem, points: int | None) -> Problem:
+    """`problem` with its current points thinned evenly to at most `points` (None, or no more
+    than that: unchanged). The previous side, built from the previous cloud, stays."""
+    if points is None or points >= problem.curr.shape[1]:
+        return problem
+    idx, live = spread_subset(problem.curr_valid, points)
+    return eqx.tree_at(
+        lambda p: (p.curr, p.curr_valid), problem, (problem.curr[:, idx], live & problem.curr_valid[idx])
+    )
+
+
 def local_refine(problem: Problem, config: Config, start: Float[Array, "6"]) -> LocalResult:
     """Maximise the soft objective from `start` with the config's optimistix minimiser
-    (`Config.refine`), in coordinates of 1° and 1 cm; no refine returns `start`."""
+    (`Config.refine`), in coordinates of 1° and 1 cm, on the current points thinned to
+    `Refine.points`; no refine returns `start`. The result is kept only if it scores at least
+    as well as `start` on all the current points."""
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)
     if config.refine is None:
@@ -194,8 +208,9 @@ def local_refine(problem: Problem, config: Config, start: Float[Array, "6"]) -> 
     def loss(y, pb):
         return -soft_score(y * scale, pb)
 
+    scored = thinned_current(problem, config.refine.points)
     sol = optx.minimise(
-        loss, config.refine.solver, start / scale, problem, max_steps=config.refine.max_steps, throw=False
+        loss, config.refine.solver, start / scale, scored, max_steps=config.refine.max_steps, throw=False
     )
     p = sol.value * scale
     f = soft_score(p, problem)

@@ -132,6 +132,24 @@ def test_the_search_scores_a_coarse_problem_of_the_same_frame(paper_clouds):
     )
 
 
+def test_the_refine_scores_an_even_subset_of_the_current_points(n5_problem):
+    """Refine.points: the refine's problem keeps the previous side and at most that many of the
+    current points, all of them real current points; at or above the count it is the problem."""
+    from jaxpose._search import thinned_current
+
+    count = int(n5_problem.curr_valid.sum())
+    thin = thinned_current(n5_problem, 1000)
+    kept = np.asarray(thin.curr)[:, np.asarray(thin.curr_valid)].T
+    everything = {tuple(x) for x in np.asarray(n5_problem.curr)[:, np.asarray(n5_problem.curr_valid)].T}
+    assert count > 1000 and len(kept) == 1000 and all(tuple(x) in everything for x in kept)
+    np.testing.assert_array_equal(np.asarray(thin.r_field), np.asarray(n5_problem.r_field))
+    np.testing.assert_array_equal(np.asarray(thin.fine.normals), np.asarray(n5_problem.fine.normals))
+    assert thinned_current(n5_problem, None) is n5_problem
+    assert thinned_current(n5_problem, n5_problem.curr.shape[1]) is n5_problem
+    with pytest.raises(ValueError, match="Refine.points"):
+        jp.Refine(points=5)
+
+
 def test_recentred_search_reaches_beyond_the_box_and_flags_its_edge(paper_clouds):
     # The N5 variant-2 truth has an angle of about 11.7° in frame n: outside a ±8° box. On the
     # full patterns (coarse=1): the default's coarse ones (cells three times as wide) resolve

@@ -128,6 +128,18 @@ def test_a_mesh_4_m_across_is_accepted_and_estimated():
     assert angle < 0.1, angle
 
 
+def test_a_close_view_larger_than_the_refine_is_exact():
+    """A noise-free N5 view of ≈ 19 000 points (the realistic benchmark's second N5 pair): the
+    refine scores 4096 of them (`Refine.points`), and the default call still meets the
+    noise-free goal, 0.01° and 0.01 cm."""
+    case = realistic.make_cases(2, names=("n5",), levels=(0.0,))[1]
+    assert int(case.curr.num_valid) > 4 * jp.Refine().points
+    est = jp.estimate(case.prev, case.curr, key=jax.random.key(1))
+    errors = realistic.errors(case, est.rotation, est.translation)
+    assert bool(est.success)
+    assert errors["rotation_error_deg"] < 0.01 and errors["centroid_error_cm"] < 0.01, errors
+
+
 def test_jit_users_size_a_config_from_the_camera_and_extent():
     config = jp.Config().sized_for(jp.Camera.camcube2(), extent=5.0)
     assert config.capacities.grid_cells >= (1 + 2 * 0.2) * 5.0 / 0.026

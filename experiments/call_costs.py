@@ -1,4 +1,4 @@
-"""The fine stage's linear solver and size on the realistic benchmark's pairs, GICP in the same run.
+"""What the public call's stages cost and what they buy, on the realistic benchmark's pairs, GICP in the same run.
 
 Each variant runs in its own process (a patched solver must not meet a program compiled with
 the other one) over `make_cases(pairs)`: every built-in target at σ = 0, 0.5, 1 and 2 cm, one
@@ -8,14 +8,15 @@ status; small_gicp's GICP (as in the realistic benchmark) on the same clouds in 
 
 Variants:
 
-- `cholesky`: the package as it is (Levenberg–Marquardt's damped steps by Cholesky on the
-  normal equations, `_fine.least_squares_solver`);
-- `qr`: optimistix's default QR of the stacked [J; √λ I];
+- `default`: the package as it is (the fine stage's Levenberg–Marquardt steps by Cholesky on
+  the normal equations, `_fine.least_squares_solver`; the refine on 4096 current points);
+- `qr`: the fine stage's steps by optimistix's default QR of the stacked [J; √λ I];
+- `refine_all`: the refine on all the current points (`Refine.points=None`);
 - `points2048`, `points8192`: `FineStage.points` instead of 4096;
 - `no_rest`: `FineStage.from_rest=False`.
 
     uv run --extra peers python experiments/fine_solver.py [pairs] [variant ...]
-        → results/fine_solver.{json,md}   (default: 1 pair per target and level, qr cholesky)
+        → results/call_costs.{json,md}   (default: 1 pair per target and level, qr refine_all default)
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import time
 import jax
 from _common import RESULTS, write_json
 
-VARIANTS = ("qr", "cholesky", "points2048", "points8192", "no_rest")
+VARIANTS = ("default", "qr", "refine_all", "points2048", "points8192", "no_rest")
 
 
 def variant_config(variant: str):
@@ -39,6 +40,8 @@ def variant_config(variant: str):
     config = jp.Config()
     if variant.startswith("points"):
         return dataclasses.replace(config, fine=dataclasses.replace(config.fine, points=int(variant[6:])))
+    if variant == "refine_all":
+        return dataclasses.replace(config, refine=dataclasses.replace(config.refine, points=None))
     if variant == "no_rest":
         return dataclasses.replace(config, fine=dataclasses.replace(config.fine, from_rest=False))
     return config
@@ -121,7 +124,7 @@ def markdown(results: list[dict]) -> str:
 
 
 def main(pairs: int = 1, *variants: str) -> None:
-    variants = variants or ("qr", "cholesky")
+    variants = variants or ("qr", "refine_all", "default")
     unknown = set(variants) - set(VARIANTS)
     if unknown:
         raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {VARIANTS}")
@@ -134,8 +137,8 @@ def main(pairs: int = 1, *variants: str) -> None:
         print(variant, json.dumps(summary(results[-1]["rows"])), flush=True)
     table = markdown(results)
     print(table)
-    write_json("fine_solver.json", {"pairs_per_cell": pairs, "results": results})
-    (RESULTS / "fine_solver.md").write_text(table)
+    write_json("call_costs.json", {"pairs_per_cell": pairs, "results": results})
+    (RESULTS / "call_costs.md").write_text(table)
 
 
 if __name__ == "__main__":
