@@ -8,15 +8,19 @@ status; small_gicp's GICP (as in the realistic benchmark) on the same clouds in 
 
 Variants:
 
-- `default`: the package as it is (the fine stage's Levenberg–Marquardt steps by Cholesky on
-  the normal equations, `_fine.least_squares_solver`; the refine on 4096 current points);
-- `qr`: the fine stage's steps by optimistix's default QR of the stacked [J; √λ I];
+- `default`: the package as it is (the fine stage's rounds by optimistix's Gauss–Newton with
+  Cholesky on the normal equations, `_fine.least_squares_solver`; the refine on 4096 current
+  points);
+- `qr`: the fine stage's rounds by optimistix's Levenberg–Marquardt with its default QR of the
+  stacked [J; √λ I];
+- `levenberg_marquardt`: Levenberg–Marquardt with the same Cholesky on the normal equations;
 - `refine_all`: the refine on all the current points (`Refine.points=None`);
 - `points2048`, `points8192`: `FineStage.points` instead of 4096;
 - `no_rest`: `FineStage.from_rest=False`.
 
-    uv run --extra peers python experiments/fine_solver.py [pairs] [variant ...]
-        → results/call_costs.{json,md}   (default: 1 pair per target and level, qr refine_all default)
+    uv run --extra peers python experiments/call_costs.py [pairs] [variant ...]
+        → results/call_costs.{json,md}
+        (default: 1 pair per target and level; qr levenberg_marquardt refine_all default)
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ import time
 import jax
 from _common import RESULTS, write_json
 
-VARIANTS = ("default", "qr", "refine_all", "points2048", "points8192", "no_rest")
+VARIANTS = ("default", "qr", "refine_all", "levenberg_marquardt", "points2048", "points8192", "no_rest")
 
 
 def variant_config(variant: str):
@@ -49,6 +53,7 @@ def variant_config(variant: str):
 
 def run_variant(variant: str, pairs: int) -> dict:
     """One variant's rows (this process only)."""
+    import lineax as lx
     import optimistix as optx
 
     from jaxpose import _fine
@@ -58,6 +63,10 @@ def run_variant(variant: str, pairs: int) -> dict:
 
     if variant == "qr":
         _fine.least_squares_solver = lambda tol: optx.LevenbergMarquardt(rtol=tol, atol=tol)
+    if variant == "levenberg_marquardt":
+        _fine.least_squares_solver = lambda tol: optx.LevenbergMarquardt(
+            rtol=tol, atol=tol, linear_solver=lx.Normal(lx.Cholesky())
+        )
     cases = realistic.make_cases(pairs)
     config = sized_batch_config([(c.prev, c.curr) for c in cases], variant_config(variant))
     key0 = jax.random.key(0)
@@ -124,7 +133,7 @@ def markdown(results: list[dict]) -> str:
 
 
 def main(pairs: int = 1, *variants: str) -> None:
-    variants = variants or ("qr", "refine_all", "default")
+    variants = variants or ("qr", "levenberg_marquardt", "refine_all", "default")
     unknown = set(variants) - set(VARIANTS)
     if unknown:
         raise SystemExit(f"unknown variants {sorted(unknown)}; choose from {VARIANTS}")

@@ -199,7 +199,7 @@ class Refine(eqx.Module):
 
 class FineStage(eqx.Module):
     """The fine stage (ours, `jaxpose._fine`): point-to-plane least squares (optimistix
-    Levenberg–Marquardt, match-then-solve rounds) of the current points against planes fitted
+    Gauss–Newton, match-then-solve rounds) of the current points against planes fitted
     to the previous points, over the visible surface (the default) or near the cutting planes.
 
     - `prev_slab`, `curr_slab`: half-widths of the previous and current slabs around each
@@ -229,7 +229,7 @@ class FineStage(eqx.Module):
       (docs, Findings: the fine stage's anchor). Noise-free, the plane of a neighbourhood that spans an
       edge misses the surface by micrometres to millimetres.
     - `rounds`: most match-then-solve rounds (static).
-    - `steps`, `tol`: Levenberg–Marquardt's step limit per round and its rtol = atol, in units
+    - `steps`, `tol`: Gauss–Newton's step limit per round and its rtol = atol, in units
       of 1° and 1 cm (static). At 1e-4, on the paper's pairs × 3 keys every result is within
       0.00004° / 0.00004 cm of the truth, as at 1e-6, with a median of 14.5 steps against 35
       (docs, Findings: the fine stage's tolerance).

@@ -73,7 +73,7 @@ class Estimate(eqx.Module):
       best score of each CMA-ES generation of the first search of the restart that gave the
       result, evaluations, whether it ended at the box edge, re-centrings and restarts).
     - `refine`: the local stage's `LocalResult` (its p, soft score, convergence and steps).
-    - `fine`: the fine stage's `FineResult` (p, convergence, Levenberg–Marquardt steps over
+    - `fine`: the fine stage's `FineResult` (p, convergence, Gauss–Newton steps over
       all rounds, inlier fraction and inlier RMS point-to-plane residual in metres), or None
       when `Config.fine` is None.
     - `fine_kept`: whether `params` is the fine stage's result (False: no fine stage, or its

@@ -169,9 +169,9 @@ def test_a_noisy_pair_converges_to_its_noise_floor(camera):
 
 
 def test_the_normal_equations_solver_gives_the_qr_result(monkeypatch):
-    """The fine stage solves its damped steps by Cholesky on JᵀJ + λI (`least_squares_solver`)
-    for speed; on a noisy whole-surface pair it must land where optimistix's default QR of the
-    stacked [J; √λ I] lands (float64)."""
+    """The fine stage solves each round by Gauss–Newton with Cholesky on JᵀJ
+    (`least_squares_solver`) for speed; on a noisy whole-surface pair it must land where
+    optimistix's Levenberg–Marquardt with its default QR of the stacked [J; √λ I] lands (float64)."""
     import optimistix as optx
 
     from jaxpose import _fine
