@@ -336,8 +336,8 @@ def least_squares_solver(tol: float) -> optx.GaussNewton:
     round whose step is not finite (no inliers) leaves p where it was (`fine_refine`). The
     Jacobian is tall and thin (thousands of residuals, 6 unknowns), so forming the 6 × 6 system
     costs less than a QR of J. On the realistic benchmark's 28 pairs of `make_cases(1)` the
-    median call took 345 ms with optimistix's Levenberg–Marquardt and QR, 208 ms with
-    Levenberg–Marquardt and this Cholesky, and 172 ms with this solver, with the same pairs found
+    median call took 328 ms with optimistix's Levenberg–Marquardt and QR, 198 ms with
+    Levenberg–Marquardt and this Cholesky, and 173 ms with this solver, with the same pairs found
     and no false success (docs, Findings: cheaper stages of the public call)."""
     return optx.GaussNewton(rtol=tol, atol=tol, linear_solver=lx.Normal(lx.Cholesky()))
 
