@@ -181,9 +181,9 @@ class Refine(eqx.Module):
     - `max_steps`: its step limit (static).
     - `points`: the current points it scores, thinned evenly from the problem's (static; None:
       all of them). The refine only has to bring p into the fine stage's basin, and the soft
-      objective's cost grows with the points: on a 20 000-point N5 view it took 58 ms of a
-      172 ms call. With 4096 the realistic benchmark's pairs kept their errors (docs,
-      Findings: cheaper stages of the public call).
+      objective's cost grows with the points (a close view has 20 000). With 4096 the
+      realistic benchmark's pairs kept their errors (docs, Findings: cheaper stages of the
+      public call).
     """
 
     solver: optx.AbstractMinimiser = optx.BFGS(rtol=REFINE_TOL, atol=REFINE_TOL)
