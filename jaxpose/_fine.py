@@ -333,7 +333,8 @@ def least_squares_solver(tol: float) -> optx.GaussNewton:
     With the matches of a round fixed, the weighted point-to-plane problem is nearly linear in
     p, and the point-to-point term (`POINT_WEIGHT`) keeps JᵀJ positive definite wherever a
     round has three non-collinear inliers, so a plain Gauss–Newton step needs no damping; a
-    round whose step is not finite (no inliers) leaves p where it was (`fine_refine`). The
+    round whose step comes out non-finite (a singular JᵀJ: one or two inliers) leaves p where
+    it was (`fine_refine`). The
     Jacobian is tall and thin (thousands of residuals, 6 unknowns), so forming the 6 × 6 system
     costs less than a QR of J. On the realistic benchmark's 28 pairs of `make_cases(1)` the
     median call took 328 ms with optimistix's Levenberg–Marquardt and QR, 198 ms with

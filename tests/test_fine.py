@@ -192,6 +192,19 @@ def test_the_normal_equations_solver_gives_the_qr_result(monkeypatch):
     np.testing.assert_allclose(np.asarray(normal.params), np.asarray(qr.params), atol=1e-6)
 
 
+def test_a_round_without_inliers_keeps_the_start_and_stays_finite(paper_clouds):
+    """With no inliers (every current point farther than `FineStage.inlier` from the previous
+    points) every residual is zero: the undamped Gauss–Newton rounds must leave p at the start,
+    finite, and report no inliers."""
+    config = jp.Config()
+    problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config)
+    start = jnp.array([0.0, 0.0, 0.0, 1.0, -1.0, 1.0])  # 1.7 m away: nothing within 3 cm
+    result = jax.jit(lambda s: fine_refine(problem, config, s))(start)
+    assert float(result.inliers) == 0.0
+    np.testing.assert_array_equal(np.asarray(result.params), np.asarray(start))
+    assert np.all(np.isfinite(np.asarray(result.params))) and bool(result.converged)
+
+
 def test_the_fine_result_is_kept_only_within_the_search_reach():
     from jaxpose._estimate import within_reach
 
