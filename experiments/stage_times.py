@@ -20,14 +20,12 @@ default config sized from each pair (`sized_config`), the median of `repeats` wa
 from __future__ import annotations
 
 import dataclasses
-import statistics
 import sys
-import time
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from _common import RESULTS, write_json
+from _common import RESULTS, time_call, write_json
 
 import jaxpose as jp
 from jaxpose._estimate import _estimate_pair
@@ -41,13 +39,8 @@ COLUMNS = ("call", "build", "build_no_fine", "knn", "nearest", "search", "refine
 
 
 def median_ms(fn, repeats: int) -> float:
-    jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times)
+    """The median of `repeats` warm calls of `fn`, milliseconds (`time_call`)."""
+    return 1e3 * time_call(fn, repeats=repeats)["median_s"]
 
 
 build = eqx.filter_jit(_build)

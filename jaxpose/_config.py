@@ -527,9 +527,9 @@ class Config(eqx.Module):
 
 def _full_search_sections() -> dict:
     """The sections shared by `wide`, `tracking` and the deprecated `thorough`: the search on
-    the full patterns (CMA-ES 32 × 40), up to 100 BFGS steps on all the current points, and a fine stage near the
-    planes (2048 points a side, slabs of 3d / 2d, planes through the points, no guard,
-    tolerance 1e-6)."""
+    the full patterns (CMA-ES 32 × 40), up to 100 BFGS steps on all the current points, and a
+    fine stage near the planes (2048 points a side, slabs of 3d / 2d, planes through the
+    points, no guard, tolerance 1e-6)."""
     return {
         "search": GlobalSearch(coarse_factor=1, population=32, generations=40),
         "refine": Refine(max_steps=100, points=None),
