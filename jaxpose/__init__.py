@@ -30,9 +30,13 @@ from ._config import (
     Refine as Refine,
 )
 from ._config import (
+    RotationSearch as RotationSearch,
+)
+from ._config import (
     Thresholds as Thresholds,
 )
 from ._estimate import Estimate as Estimate
+from ._estimate import Hypotheses as Hypotheses
 from ._estimate import Status as Status
 from ._estimate import estimate as estimate
 from ._frame import PlaneFrame as PlaneFrame
@@ -78,9 +82,11 @@ __all__ = [
     "GlobalSearch",
     "Patterns",
     "Refine",
+    "RotationSearch",
     "Status",
     "Thresholds",
     "Estimate",
+    "Hypotheses",
     "PlaneFrame",
     "Problem",
     "Track",

@@ -4,13 +4,14 @@ The sections follow the data flow: [`Patterns`][jaxpose.Patterns] (how a cloud b
 patterns), [`Capacities`][jaxpose.Capacities] (the static array sizes, sized from the data
 when left at None), [`GlobalSearch`][jaxpose.GlobalSearch] (the evosax CMA-ES over the
 search box), [`Refine`][jaxpose.Refine] (an optimistix minimiser on the soft objective),
-[`FineStage`][jaxpose.FineStage] (point-to-plane least squares) and
-[`Thresholds`][jaxpose.Thresholds] (what counts as a result, what counts as input). A stage
-set to None does not run. Lengths in metres, angles in radians.
+[`FineStage`][jaxpose.FineStage] (point-to-plane least squares),
+[`Thresholds`][jaxpose.Thresholds] (what counts as a result, what counts as input) and
+[`RotationSearch`][jaxpose.RotationSearch] (capture over the whole rotation group, in place of
+the box search). A stage set to None does not run. Lengths in metres, angles in radians.
 
 Presets are named constructors that differ from the default: [`Config.paper`][jaxpose.Config.paper],
-[`Config.fast`][jaxpose.Config.fast], [`Config.wide`][jaxpose.Config.wide] and
-[`Config.tracking`][jaxpose.Config.tracking].
+[`Config.fast`][jaxpose.Config.fast], [`Config.wide`][jaxpose.Config.wide],
+[`Config.capture`][jaxpose.Config.capture] and [`Config.tracking`][jaxpose.Config.tracking].
 """
 
 from __future__ import annotations
@@ -162,6 +163,54 @@ class GlobalSearch(eqx.Module):
         _check_range("GlobalSearch", "angle_box", self.angle_box, 0.0, math.pi)
         _check_range("GlobalSearch", "shift_box", self.shift_box, 0.0, math.inf)
         _check_range("GlobalSearch", "restart_below", self.restart_below, 0.0, 1.0, closed_low=True)
+
+
+class RotationSearch(eqx.Module):
+    """The capture stage (`jaxpose._capture`): a global search over the whole rotation group
+    that replaces the box search of [`GlobalSearch`][jaxpose.GlobalSearch] when set
+    (`Config.so3`, see [`Config.capture`][jaxpose.Config.capture]).
+
+    - `rotations`: size of the super-Fibonacci grid of rotations (static); the 24 alignments
+      of the two clouds' principal frames are added to it.
+    - `objective`: "hard" or "soft", what scores the grid on the coarse problem (static).
+    - `modes`: distinct best candidates refined on the coarse problem (static).
+    - `hypotheses`: distinct refined modes fitted to the surface and returned in
+      `Estimate.hypotheses` (static).
+    - `separation_deg`: rotations closer than this (degrees) are one mode, among the grid's
+      candidates and among the refined modes that become hypotheses; fitted hypotheses closer
+      than half of it are one answer (static).
+    - `points`: current and previous points of the hypotheses' surface fits and of their
+      consistency scores (static).
+    - `wide_inlier`, `wide_rounds`: inlier gate (metres) and rounds of a hypothesis's first
+      surface fit, which pulls in a translation that the grid's overlap estimate left
+      centimetres off (the second fit uses `FineStage.inlier`).
+    - `tie`: a distinct hypothesis whose consistency is within this of the best's makes the
+      estimate `Status.ambiguous` (0–1). On noise-free N5 pairs of the capture benchmark
+      (exactly symmetric: its equivalent motions explain the clouds equally) the equivalents
+      scored up to 0.05 below the best, through edges, panels that hide one another and
+      sampling; hence 0.06.
+    """
+
+    rotations: int = eqx.field(static=True, default=8192)
+    objective: Literal["hard", "soft"] = eqx.field(static=True, default="hard")
+    modes: int = eqx.field(static=True, default=16)
+    hypotheses: int = eqx.field(static=True, default=6)
+    separation_deg: float = eqx.field(static=True, default=12.0)
+    points: int = eqx.field(static=True, default=1024)
+    wide_inlier: Scalar = 0.10
+    wide_rounds: int = eqx.field(static=True, default=10)
+    tie: Scalar = 0.06
+
+    def __check_init__(self):
+        if self.objective not in ("hard", "soft"):
+            raise ValueError(f"RotationSearch.objective must be 'hard' or 'soft', got {self.objective!r}.")
+        if min(self.rotations, self.modes, self.hypotheses, self.wide_rounds) < 1 or self.points < 10:
+            raise ValueError("RotationSearch needs rotations, modes, hypotheses, wide_rounds ≥ 1 and points ≥ 10.")
+        if self.hypotheses > self.modes:
+            raise ValueError(f"RotationSearch.hypotheses ({self.hypotheses}) must not exceed modes ({self.modes}).")
+        _check_range("RotationSearch", "separation_deg", self.separation_deg, 0.0, 180.0)
+        _check_range("RotationSearch", "wide_inlier", self.wide_inlier, 0.0, math.inf)
+        _check_range("RotationSearch", "tie", self.tie, 0.0, 1.0, closed_low=True)
 
 
 REFINE_TOL = 3e-4
@@ -340,6 +389,8 @@ class Config(eqx.Module):
     - `refine`: [`Refine`][jaxpose.Refine] or None (the paper's method has none).
     - `fine`: [`FineStage`][jaxpose.FineStage] or None.
     - `thresholds`: [`Thresholds`][jaxpose.Thresholds].
+    - `so3`: [`RotationSearch`][jaxpose.RotationSearch] or None (the default): the capture
+      stage over the whole rotation group, in place of the box search (`Config.capture()`).
 
     Change one setting with `dataclasses.replace`, e.g.
     `dataclasses.replace(config, fine=dataclasses.replace(config.fine, points=8192))`, or
@@ -356,6 +407,7 @@ class Config(eqx.Module):
     refine: Refine | None
     fine: FineStage | None
     thresholds: Thresholds
+    so3: RotationSearch | None
 
     def __init__(
         self,
@@ -365,6 +417,7 @@ class Config(eqx.Module):
         refine=_DEFAULT,
         fine=_DEFAULT,
         thresholds: Thresholds | None = None,
+        so3: RotationSearch | None = None,
         **legacy,
     ):
         sections = {
@@ -374,12 +427,15 @@ class Config(eqx.Module):
             "refine": Refine() if refine is _DEFAULT else refine,
             "fine": FineStage() if fine is _DEFAULT else fine,
             "thresholds": Thresholds() if thresholds is None else thresholds,
+            "so3": so3,
         }
         if isinstance(sections["fine"], str):  # the flat `fine="none" | "point_to_plane"`
             legacy["fine"] = sections.pop("fine")
             sections["fine"] = FineStage()
         if legacy:
             sections = _apply_legacy(sections, legacy)
+        if sections["so3"] is not None and sections["fine"] is None:
+            raise ValueError("Config.so3 (the capture stage) fits its hypotheses with the fine stage: set Config.fine.")
         for name, value in sections.items():
             setattr(self, name, value)
 
@@ -495,6 +551,18 @@ class Config(eqx.Module):
             restarts=7,
         )
         base = {**_full_search_sections(), "patterns": Patterns(slices=3), "search": search}
+        return cls(**{**base, **changes})
+
+    @classmethod
+    def capture(cls, **changes) -> Config:
+        """Capture at any rotation, for a first estimate with no prior: the global stage over the
+        whole rotation group ([`RotationSearch`][jaxpose.RotationSearch], 8192 super-Fibonacci
+        rotations and the principal-frame alignments scored on the coarse problem, 16 modes
+        refined, 6 hypotheses fitted to the surface), then the default fine stage from the
+        best hypothesis. `Estimate.hypotheses` holds the distinct hypotheses, best first;
+        `Estimate.ambiguous` says that another one explains the clouds as well (a symmetric
+        target). Up to 30 BFGS steps per mode."""
+        base = {"so3": RotationSearch(), "refine": Refine(max_steps=30)}
         return cls(**{**base, **changes})
 
     @classmethod

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from . import _fine
+from ._capture import capture_search
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
@@ -58,6 +59,34 @@ STATUS_NAME = {code: name.replace("_", " ") for code, name in enumerate(_NAMES)}
 """Code → short name of each `Status` item, for tables."""
 
 
+class Hypotheses(eqx.Module):
+    """The distinct motions that explain a pair, best first (`Estimate.hypotheses`).
+
+    - `params`: `(k, 6)` p in frame n (radians and metres).
+    - `rotation`, `translation`: `(k, 3, 3)` and `(k, 3)`, the motions in the camera frame,
+      x ↦ R x + t, like `Estimate.rotation` and `Estimate.translation`.
+    - `score`: `(k,)` how well each explains the clouds, 0–1, higher is better: with the
+      capture stage (`Config.so3`) the share of the surface each view should see of the other
+      that it does see (`jaxpose._capture.consistency`); otherwise the fine stage's inlier
+      fraction. −1 in a slot without a hypothesis of its own.
+    - `distinct`: `(k,)` whether the slot holds one (False: a repeat of a better one, or none).
+
+    Slot 0 is the estimate itself.
+    """
+
+    params: Float[Array, "*batch k 6"]
+    rotation: Float[Array, "*batch k 3 3"]
+    translation: Float[Array, "*batch k 3"]
+    score: Float[Array, "*batch k"]
+    distinct: Bool[Array, "*batch k"]
+
+
+def hypotheses_of(frame: PlaneFrame, params, score, distinct) -> Hypotheses:
+    """`Hypotheses` from p (frame n) of each, with their camera-frame motions."""
+    R, t = jax.vmap(lambda p: motion_from_displacement(frame.origin, frame.axes, p))(params)
+    return Hypotheses(params, R, t, score, distinct)
+
+
 class Estimate(eqx.Module):
     """Result of [`estimate`][jaxpose.estimate].
 
@@ -83,6 +112,9 @@ class Estimate(eqx.Module):
       by more than `Thresholds.ambiguous_deg`; the result is then `Status.ambiguous`.
     - `alternative`: p (frame n) of the fit that was not chosen (equal to `params` without
       `FineStage.from_rest` or a fine stage).
+    - `hypotheses`: the distinct motions found, best first ([`Hypotheses`][jaxpose.Hypotheses]):
+      with the capture stage (`Config.so3`) its `RotationSearch.hypotheses`; otherwise the
+      chosen fit and the alternative (or the estimate alone without a fine stage).
     """
 
     params: Float[Array, "6"]
@@ -98,6 +130,7 @@ class Estimate(eqx.Module):
     fine_kept: Bool[Array, ""]
     ambiguous: Bool[Array, ""]
     alternative: Float[Array, "6"]
+    hypotheses: Hypotheses
 
     @property
     def status(self) -> Int[Array, "*batch"]:
@@ -168,14 +201,24 @@ def within_reach(p: Float[Array, "6"], config: Config) -> Bool[Array, ""]:
 @eqx.filter_jit
 def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Estimate:
     """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
+    if config.so3 is not None:
+        return _finish(problem, config, *_capture_stages(problem, config))
+    return _finish(problem, config, *_box_stages(problem, config, key))
+
+
+def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray):
+    """CMA-ES in the search box, the refine, and the fine stage from the refine's result (and
+    from rest): the stages of every preset but `Config.capture()`."""
     glob = restarted_search(problem, config, key)
     loc = local_refine(problem, config, glob.params)
     p, converged = loc.params, loc.converged
     hard = hard_score(p, problem)
     fine, fine_kept = None, jnp.asarray(False)
     ambiguous, alternative = jnp.asarray(False), p
+    candidates = p[None], jnp.ones(1, p.dtype), jnp.ones(1, bool)
     if config.fine is not None:
         fine = fine_refine(problem, config, loc.params)
+        other = fine
         if config.fine.from_rest:
             rest = fine_refine(problem, config, jnp.zeros_like(loc.params))
             ambiguous = equally_good_and_apart(fine, rest, config)
@@ -194,14 +237,56 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         p = jnp.where(fine_kept, fine.params, p)
         converged = jnp.where(fine_kept, fine.converged, converged)
         hard = jnp.where(fine_kept, fine_hard, hard)
+        apart = rotation_angle(rotation(*p[:3]), rotation(*other.params[:3])) > jnp.radians(
+            config.thresholds.ambiguous_deg
+        )
+        candidates = (
+            jnp.stack([p, other.params]),
+            jnp.stack([jnp.where(fine_kept, fine.inliers, 0.0), other.inliers]),
+            jnp.stack([jnp.asarray(True), apart & fine_kept]),
+        )
+    return glob, loc, p, converged, hard, fine, fine_kept, ambiguous & fine_kept, alternative, candidates
+
+
+def _capture_stages(problem: Problem, config: Config):
+    """The capture stage over the whole rotation group (`jaxpose._capture`), then the configured
+    fine stage from its best hypothesis."""
+    cap = capture_search(problem, config)
+    fine = fine_refine(problem, config, cap.params[0])
+    if config.fine.anchor != "point":
+        fine = polish_exact(problem, config, fine)
+    p = fine.params
+    rest = cap.params[1:]
+    runner_up = jnp.argmax(jnp.where(cap.distinct[1:], cap.score[1:], -jnp.inf))
+    ambiguous = cap.distinct[1 + runner_up] & (cap.score[1 + runner_up] >= cap.score[0] - config.so3.tie)
+    glob = GlobalResult(
+        cap.grid_best,
+        cap.grid_score,
+        cap.grid_score[None],
+        cap.evaluations,
+        jnp.asarray(False),
+        jnp.asarray(0, jnp.int32),
+        jnp.asarray(0, jnp.int32),
+    )
+    refined = cap.refined[0]
+    loc = LocalResult(refined, soft_score(refined, problem), jnp.asarray(True), jnp.asarray(0, jnp.int32))
+    alternative = jnp.where(cap.distinct[1 + runner_up], rest[runner_up], p)
+    candidates = (cap.params.at[0].set(p), cap.score, cap.distinct)
+    fine_kept = jnp.all(jnp.isfinite(p))
+    return glob, loc, p, fine.converged, hard_score(p, problem), fine, fine_kept, ambiguous, alternative, candidates
+
+
+def _finish(
+    problem, config, glob, loc, p, converged, hard, fine, fine_kept, ambiguous, alternative, candidates
+) -> Estimate:
+    """The status (first matching condition of a fixed priority) and the estimate's fields."""
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
-    # First matching condition wins: the order is the priority of the statuses.
     conditions = [
         (problem.status != 0, Status.degenerate),
         (~finite, Status.non_finite),
         (hard < config.thresholds.min_score, Status.low_score),
         (glob.at_edge, Status.at_box_edge),
-        (ambiguous & fine_kept, Status.ambiguous),
+        (ambiguous, Status.ambiguous),
         (~converged, Status.not_converged),
     ]
     result = Status.success
@@ -209,6 +294,8 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         result = Status.where(condition, item, result)
     p = jnp.where(finite, p, jnp.zeros_like(p))
     R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
+    params, score, distinct = candidates
+    params = jnp.where(jnp.all(jnp.isfinite(params), axis=1, keepdims=True), params, p[None])
     return Estimate(
         params=p,
         rotation=R,
@@ -221,8 +308,9 @@ def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Est
         refine=loc,
         fine=fine,
         fine_kept=fine_kept,
-        ambiguous=ambiguous & fine_kept,
+        ambiguous=ambiguous,
         alternative=jnp.where(jnp.all(jnp.isfinite(alternative)), alternative, p),
+        hypotheses=hypotheses_of(problem.frame, params.at[0].set(p), score, distinct),
     )
 
 
@@ -273,4 +361,13 @@ _estimate_pair = BoundedJit(_build_and_estimate)
 recently used ones kept in memory, see `jaxpose._programs`)."""
 
 
-__all__ = ["AMBIGUOUS", "STATUS_NAME", "STATUS_TEXT", "Estimate", "Status", "estimate", "estimate_problem"]
+__all__ = [
+    "AMBIGUOUS",
+    "STATUS_NAME",
+    "STATUS_TEXT",
+    "Estimate",
+    "Hypotheses",
+    "Status",
+    "estimate",
+    "estimate_problem",
+]

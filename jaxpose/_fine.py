@@ -176,6 +176,36 @@ def smallest_eigen(
     return smallest, middle, jnp.where(defined[:, None], vector / jnp.where(defined, size, 1)[:, None], 0.0), defined
 
 
+class Neighbourhoods(NamedTuple):
+    """The plane fitted to each point's neighbourhood ([`neighbourhood_planes`][]), frame of the
+    points, metres: `centroid` (3, K), the `smallest` and `middle` scatter eigenvalues (K,),
+    the unit `normal` (3, K) (unoriented; 0 where undefined) and whether the fit is defined
+    (`enough`: at least 3 neighbours and a single smallest eigenvalue)."""
+
+    centroid: Float[Array, "3 K"]
+    smallest: Float[Array, " K"]
+    middle: Float[Array, " K"]
+    normal: Float[Array, "3 K"]
+    enough: Bool[Array, " K"]
+
+
+def neighbourhood_planes(
+    grid: VoxelGrid, points: Float[Array, "3 N"], queries: Float[Array, "3 K"], k: int
+) -> Neighbourhoods:
+    """The plane through the `k` nearest neighbours of each query (SoA) among `points`, the
+    points `grid` was built from: centroid, scatter eigenvalues and normal."""
+    nb, d2 = k_nearest(grid, queries, k, NEIGHBOUR_SLOTS)
+    found = jnp.isfinite(d2).astype(queries.dtype)  # neighbours within the search's reach
+    hood = points[:, nb]  # (3, K, k)
+    counts = jnp.maximum(jnp.sum(found, axis=1), 1)
+    centroid = jnp.sum(hood * found[None], axis=2, keepdims=True) / counts[None, :, None]
+    centred = (hood - centroid) * found[None]
+    scatter = jnp.einsum("ikn,jkn->kij", centred, centred)
+    smallest, middle, normal, defined = smallest_eigen(scatter)
+    enough = (jnp.sum(found, axis=1) >= 3) & defined
+    return Neighbourhoods(centroid[:, :, 0], smallest, middle, normal.T, enough)
+
+
 def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Config, planes, d) -> FineCloud:
     """The previous side of the fine stage from the previous points in frame n (rows)."""
     stage = FineStage(points=1) if config.fine is None else config.fine  # None: one empty slot
@@ -185,15 +215,8 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     idx, live = spread_subset(near, K)
     P = A[:, idx]
     grid = voxel_grid(P, live, NEIGHBOUR_VOXEL * voxel_spacing(P, live))
-    nb, d2 = k_nearest(grid, P, min(stage.neighbours, K), NEIGHBOUR_SLOTS)
-    found = jnp.isfinite(d2).astype(P.dtype)  # neighbours within the search's reach
-    hood = P[:, nb]  # (3, K, k)
-    counts = jnp.maximum(jnp.sum(found, axis=1), 1)
-    centroid = jnp.sum(hood * found[None], axis=2, keepdims=True) / counts[None, :, None]
-    centred = (hood - centroid) * found[None]
-    scatter = jnp.einsum("ikn,jkn->kij", centred, centred)
-    smallest, middle, normal, defined = smallest_eigen(scatter)
-    enough = (jnp.sum(found, axis=1) >= 3) & defined
+    hood = neighbourhood_planes(grid, P, P, min(stage.neighbours, K))
+    centroid, smallest, middle, normal, enough = hood
     # Planarity: smallest / middle scatter eigenvalue. Keep the `FineStage.planar_fraction` most
     # planar points: a rank, not an absolute threshold, so that it works whatever the noise
     # (with 1 cm range noise on N5 every neighbourhood scored above 0.01, noise-free the
@@ -207,8 +230,7 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     # nearest-neighbour match prefers previous points whose noise moved them towards the
     # current point, which biased registrations of N5 with 1 cm noise in proportion to the
     # motion (docs, Findings: the fine stage's anchor). Matching and the inlier test use the points.
-    normal = normal.T
-    anchor = centroid[:, :, 0] if stage.anchor == "centroid" else P
+    anchor = centroid if stage.anchor == "centroid" else P
     offset = jnp.sum(normal * anchor, axis=0)
     point_offset = jnp.sum(normal * P, axis=0)
     return FineCloud(

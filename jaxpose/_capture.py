@@ -1,0 +1,285 @@
+"""Capture at any rotation: the global stage over the whole rotation group (`Config.so3`).
+
+The box search of `_search` reaches rotations of tens of degrees. For a first estimate with no
+prior, this stage replaces it (DECISIONS.md is silent on capture; the choices are ours):
+
+1. **Candidates** (`candidate_displacements`): a super-Fibonacci grid of rotations over all of
+   SO(3) plus the 24 alignments of the two clouds' principal frames. Each gets the translation
+   that lines up the surface the two views share (`overlap_translation`), not the centroids'
+   shift: after a large turn the camera sees other faces, and the centroids of the two views
+   lie tens of centimetres apart on the target.
+2. **Scores** of all candidates in batches on the coarse problem (`score_batch`); the best
+   `RotationSearch.modes` distinct ones (`distinct_best`) are refined on the coarse problem
+   (the configured refine, soft objective).
+3. **Hypotheses**: the best `RotationSearch.hypotheses` distinct refined modes are fitted to
+   the surface by two fine-stage passes on `RotationSearch.points` current points (a wide
+   inlier gate that pulls the translation in, then the configured gate), and ranked by
+   `consistency`: the share of the surface each view should see of the other that it does
+   see. A motion that maps a symmetric target onto itself explains the clouds as well as the
+   truth, so both score alike there; the inlier fraction would instead prefer the larger overlap.
+
+Frames: p and every point here are in the previous cloud's plane frame n (metres, radians);
+the camera, at the origin of frame c, is at −G^c_nᵀ O_n in frame n.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ._batch import score_batch
+from ._config import Config
+from ._fine import NEIGHBOUR_VOXEL, FineResult, fine_refine, neighbourhood_planes
+from ._neighbours import nearest, spread_subset, voxel_grid, voxel_spacing
+from ._problem import Problem
+from ._rotations import angles, rotation, rotation_angle, signed_permutations, super_fibonacci
+from ._search import local_refine
+
+NORMAL_NEIGHBOURS = 12
+"""Neighbours of a current point's normal in the overlap and consistency tests."""
+
+SLOTS = 16
+"""Points each voxel holds for the neighbour searches of this module (`_neighbours`)."""
+
+GRAZING_COS = 0.25
+"""A point's area weight is r² / max(|cos incidence|, this): the surface a pixel covers grows as
+the square of the range and as 1 / cos of the incidence angle, up to this grazing limit."""
+
+
+class Surface(eqx.Module):
+    """Points of one view with their normals turned towards the camera and their area weights
+    (frame n, metres; the weight is proportional to the surface a point's pixel covers)."""
+
+    points: Float[Array, "3 S"]
+    normals: Float[Array, "3 S"]
+    weights: Float[Array, " S"]
+
+
+class CaptureResult(eqx.Module):
+    """The capture stage's outcome (frame n, radians and metres).
+
+    - `params`: `(k, 6)` the hypotheses' p, best first (fitted on `RotationSearch.points`).
+    - `score`: `(k,)` their `consistency` (0–1); −1 for a slot that repeats a better one.
+    - `distinct`: `(k,)` whether the slot holds a hypothesis of its own (not within half of
+      `RotationSearch.separation_deg` of a better one: under range noise, fits from nearby
+      modes land a degree or two apart and are one answer).
+    - `grid_best`, `grid_score`: the best candidate of the grid and its coarse objective.
+    - `refined`: `(k, 6)` the coarse refine's result the hypothesis started from.
+    - `evaluations`: objective evaluations of the grid.
+    """
+
+    params: Float[Array, "k 6"]
+    score: Float[Array, " k"]
+    distinct: Bool[Array, " k"]
+    grid_best: Float[Array, "6"]
+    grid_score: Float[Array, ""]
+    refined: Float[Array, "k 6"]
+    evaluations: Int[Array, ""]
+
+
+def camera_in_frame_n(problem: Problem) -> Float[Array, "3"]:
+    """The camera's centre (the origin of frame c) in frame n, metres."""
+    return -problem.frame.axes.T @ problem.frame.origin
+
+
+def _towards(normals: Float[Array, "3 S"], points: Float[Array, "3 S"], camera: Float[Array, "3"]):
+    """Normals flipped to face `camera`, and the area weight of each point."""
+    ray = camera[:, None] - points
+    facing = jnp.sum(normals * ray, axis=0)
+    normals = normals * jnp.where(facing < 0, -1.0, 1.0)[None]
+    r2 = jnp.sum(ray**2, axis=0)
+    cos = jnp.abs(facing) / jnp.sqrt(jnp.maximum(r2, jnp.finfo(points.dtype).tiny))
+    return normals, r2 / jnp.maximum(cos, GRAZING_COS)
+
+
+def previous_surface(problem: Problem, size: int) -> Surface:
+    """`size` previous points of the fine stage's side with a plane (`FineCloud.valid`), spread
+    evenly, with their normals facing the camera."""
+    idx, live = spread_subset(problem.fine.valid, size)
+    points = problem.fine.points[:, idx]
+    normals, weights = _towards(problem.fine.normals[:, idx], points, camera_in_frame_n(problem))
+    return Surface(points, normals, jnp.where(live & problem.fine.valid[idx], weights, 0.0))
+
+
+def current_surface(problem: Problem, size: int):
+    """`size` current points spread evenly with normals from their neighbours among all the
+    current points, facing the camera; and the voxel grid of all the current points (frame n)."""
+    valid = problem.curr_valid
+    grid = voxel_grid(problem.curr, valid, NEIGHBOUR_VOXEL * voxel_spacing(problem.curr, valid))
+    idx, live = spread_subset(valid, size)
+    points = problem.curr[:, idx]
+    hood = neighbourhood_planes(grid, problem.curr, points, NORMAL_NEIGHBOURS)
+    normals, weights = _towards(hood.normal, points, camera_in_frame_n(problem))
+    return Surface(points, normals, jnp.where(live & hood.enough, weights, 0.0)), grid
+
+
+def _seen_after(G, xyz, surface: Surface, camera) -> Bool[Array, " S"]:
+    """Which previous points face the camera once moved by (G, xyz): a = G a + xyz."""
+    moved = G @ surface.points + xyz[:, None]
+    return (surface.weights > 0) & (jnp.sum((G @ surface.normals) * (camera[:, None] - moved), axis=0) > 0)
+
+
+def _seen_before(G, xyz, surface: Surface, camera) -> Bool[Array, " S"]:
+    """Which current points faced the camera before the motion (G, xyz): b ↦ Gᵀ (b − xyz)."""
+    back = G.T @ (surface.points - xyz[:, None])
+    return (surface.weights > 0) & (jnp.sum((G.T @ surface.normals) * (camera[:, None] - back), axis=0) > 0)
+
+
+def overlap_translation(
+    G: Float[Array, "3 3"], xyz: Float[Array, "3"], prev: Surface, curr: Surface, camera: Float[Array, "3"]
+) -> Float[Array, "3"]:
+    """The translation (frame n, metres) that, with rotation G (G^n_ν), maps the area-weighted
+    centroid of the previous surface that stays in view onto that of the current surface that
+    was in view before. `xyz` is the guess that decides what is in view; `xyz` comes back
+    where either part is empty. Self-occlusion is not modelled: a face turned towards the
+    camera counts as seen."""
+    w_prev = prev.weights * _seen_after(G, xyz, prev, camera)
+    w_curr = curr.weights * _seen_before(G, xyz, curr, camera)
+    tiny = jnp.finfo(xyz.dtype).tiny
+    c_prev = jnp.sum(prev.points * w_prev[None], axis=1) / jnp.maximum(jnp.sum(w_prev), tiny)
+    c_curr = jnp.sum(curr.points * w_curr[None], axis=1) / jnp.maximum(jnp.sum(w_curr), tiny)
+    usable = (jnp.sum(w_prev) > 0) & (jnp.sum(w_curr) > 0)
+    return jnp.where(usable, c_curr - G @ c_prev, xyz)
+
+
+def principal_alignments(problem: Problem) -> Float[Array, "24 3 3"]:
+    """The rotations G^n_ν that carry the previous cloud's principal axes (the axes of frame n)
+    onto the current cloud's, under each of the 24 orders and signs of the axes."""
+    b, valid = problem.curr, problem.curr_valid
+    count = jnp.maximum(jnp.sum(valid), 1)
+    centred = jnp.where(valid[None], b - (jnp.sum(jnp.where(valid[None], b, 0.0), axis=1) / count)[:, None], 0.0)
+    _, U = jnp.linalg.eigh(centred @ centred.T)
+    U = U.at[:, 2].set(jnp.cross(U[:, 0], U[:, 1]))  # a proper rotation
+    return jnp.einsum("ij,sjk->sik", U, signed_permutations().astype(U.dtype))
+
+
+def candidate_displacements(
+    problem: Problem, rotations: int, prev: Surface, curr: Surface
+) -> tuple[Float[Array, "N 6"], Float[Array, "N 3 3"]]:
+    """p of every candidate (frame n): `rotations` super-Fibonacci rotations and the 24
+    principal alignments, each with its `overlap_translation` (two passes, starting from the
+    current centroid), and the rotations G^n_ν themselves."""
+    Gs = jnp.concatenate([super_fibonacci(rotations).astype(problem.d.dtype), principal_alignments(problem)])
+    camera = camera_in_frame_n(problem)
+    valid = problem.curr_valid
+    centroid = jnp.sum(jnp.where(valid[None], problem.curr, 0.0), axis=1) / jnp.maximum(jnp.sum(valid), 1)
+
+    def translation(G):
+        guess = overlap_translation(G, centroid, prev, curr, camera)
+        return overlap_translation(G, guess, prev, curr, camera)
+
+    xyz = jax.lax.map(translation, Gs, batch_size=256)
+    return jnp.concatenate([angles(Gs), xyz], axis=1), Gs
+
+
+def distinct_best(
+    scores: Float[Array, " N"], Gs: Float[Array, "N 3 3"], k: int, separation: float, look: int
+) -> tuple[Int[Array, " k"], Bool[Array, " k"]]:
+    """Indices of the `k` best-scoring rotations that lie more than `separation` (radians) from
+    every better one kept (greedy non-maximum suppression over the `look` best), and which
+    slots were filled (a slot left empty repeats the best)."""
+    order = jnp.argsort(-scores)[:look]
+
+    def consider(i, state):
+        chosen, count = state
+        j = order[i]
+        apart = rotation_angle(Gs[chosen], jnp.broadcast_to(Gs[j], (k, 3, 3))) > separation
+        take = jnp.all(apart | (jnp.arange(k) >= count)) & (count < k)
+        return jnp.where(take, chosen.at[jnp.minimum(count, k - 1)].set(j), chosen), count + take
+
+    chosen, count = jax.lax.fori_loop(0, order.shape[0], consider, (jnp.full(k, order[0]), jnp.asarray(0)))
+    return chosen, jnp.arange(k) < count
+
+
+def consistency(
+    problem: Problem, p: Float[Array, "6"], prev: Surface, curr: Surface, curr_grid, gate
+) -> Float[Array, ""]:
+    """How well p explains both clouds (0–1): of the previous points that should face the camera
+    after the motion and the current points that should have faced it before, the fraction
+    that finds a point of the other cloud within `gate` metres (area-weighted). Self-occlusion
+    is not modelled, so the truth scores below 1 on a target that hides parts of itself."""
+    G = rotation(p[0], p[1], p[2])
+    xyz = p[3:]
+    camera = camera_in_frame_n(problem)
+    w_prev = prev.weights * _seen_after(G, xyz, prev, camera)
+    _, d_prev = nearest(curr_grid, G @ prev.points + xyz[:, None], SLOTS)
+    w_curr = curr.weights * _seen_before(G, xyz, curr, camera)
+    _, d_curr = nearest(problem.fine.grid, G.T @ (curr.points - xyz[:, None]), SLOTS)
+    hit = jnp.sum(w_prev * (d_prev < gate)) + jnp.sum(w_curr * (d_curr < gate))
+    return hit / jnp.maximum(jnp.sum(w_prev) + jnp.sum(w_curr), jnp.finfo(p.dtype).tiny)
+
+
+def _hypothesis_configs(config: Config) -> tuple[Config, Config]:
+    """The two fine-stage passes of a hypothesis: on `RotationSearch.points` current points,
+    first with the inlier gate `RotationSearch.wide_inlier` and a loose tolerance, then with
+    the configured gate."""
+    so3 = config.so3
+    narrow = dataclasses.replace(config.fine, points=so3.points, tol=max(config.fine.tol, 1e-3))
+    wide = dataclasses.replace(narrow, inlier=so3.wide_inlier, rounds=so3.wide_rounds)
+    return dataclasses.replace(config, fine=wide), dataclasses.replace(config, fine=narrow)
+
+
+def capture_search(problem: Problem, config: Config) -> CaptureResult:
+    """The capture stage (module docstring) on a prepared problem. Needs `config.so3` and
+    `config.fine`. Pure and jittable."""
+    so3 = config.so3
+    prev = previous_surface(problem, so3.points)
+    curr, curr_grid = current_surface(problem, so3.points)
+    ps, Gs = candidate_displacements(problem, so3.rotations, prev, curr)
+    scores = score_batch(ps, problem.search_problem, so3.objective, chunk=64)
+    modes, _ = distinct_best(scores, Gs, so3.modes, math.radians(so3.separation_deg), min(ps.shape[0], 64 * so3.modes))
+    coarse = config.coarse_config if config.search.coarse_factor > 1 else config
+    refined = jax.lax.map(lambda p: local_refine(problem.search_problem, coarse, p).params, ps[modes])
+    refined_scores = jax.vmap(lambda p: score_batch(p[None], problem.search_problem, "soft")[0])(refined)
+    refined_G = jax.vmap(lambda p: rotation(*p[:3]))(refined)
+    top, filled = distinct_best(refined_scores, refined_G, so3.hypotheses, math.radians(so3.separation_deg), so3.modes)
+    wide, narrow = _hypothesis_configs(config)
+    gate = jnp.asarray(config.fine.inlier, problem.d.dtype)
+
+    def fit(p):
+        fitted = fine_refine(problem, narrow, fine_refine(problem, wide, p).params).params
+        return fitted, consistency(problem, fitted, prev, curr, curr_grid, gate)
+
+    params, score = jax.lax.map(fit, refined[top])
+    score = jnp.where(filled & jnp.all(jnp.isfinite(params), axis=1), score, -1.0)
+    params, score, distinct = rank_distinct(params, score, math.radians(so3.separation_deg) / 2)
+    best = jnp.argmax(scores)
+    return CaptureResult(
+        params,
+        score,
+        distinct,
+        ps[best],
+        scores[best],
+        refined[top],
+        jnp.asarray(ps.shape[0], jnp.int32),
+    )
+
+
+def rank_distinct(params: Float[Array, "k 6"], score: Float[Array, " k"], separation) -> tuple:
+    """Hypotheses sorted best first, each within `separation` (radians) of a better one marked
+    as a repeat (score −1, not distinct) and moved behind the distinct ones."""
+    order = jnp.argsort(-score)
+    params, score = params[order], score[order]
+    G = jax.vmap(lambda p: rotation(*p[:3]))(params)
+    k = score.shape[0]
+    apart = (
+        rotation_angle(jnp.broadcast_to(G[:, None], (k, k, 3, 3)), jnp.broadcast_to(G[None], (k, k, 3, 3))) > separation
+    )
+    close_to_better = jnp.any(~apart & jnp.tri(k, k=-1, dtype=bool), axis=1)
+    distinct = ~close_to_better & (score >= 0)
+    score = jnp.where(distinct, score, -1.0)
+    order = jnp.argsort(-score)
+    return params[order], score[order], distinct[order]
+
+
+def full_fit(problem: Problem, config: Config, capture: CaptureResult) -> FineResult:
+    """The configured fine stage from the best hypothesis."""
+    return fine_refine(problem, config, capture.params[0])
+
+
+__all__ = ["CaptureResult", "capture_search", "consistency", "distinct_best", "overlap_translation"]

@@ -1,0 +1,305 @@
+"""The capture benchmark: pairs at any rotation, in bins of 0–30, 30–60, 60–90, 90–135 and
+135–180°, through `jaxpose.estimate` with `Config.capture()`, the peers on the same clouds in
+the same run (`experiments/capture_benchmark.py`).
+
+Each pair (ours, fixed by `seed`): a built-in target at a uniformly random attitude, its centre
+on the optical axis at a distance drawn from [near, 6.5 m] (as `realistic.make_cases`), a turn
+of a bin's size about a uniformly random axis through its centre and a shift from a 5 cm ball;
+the ToF sensor of the realistic benchmark at σ ∈ `LEVELS_CM` (0–30 % dropout, flying pixels
+when σ > 0).
+
+**Which pairs.** A single camera sees one side of the target: after a half turn about an axis
+across the line of sight it sees the other side, and no registration can relate two views
+that share no surface. A pair is kept when at least `MIN_OVERLAP` of its current points lie
+within 2 cm of a previous point once moved back by the true motion; otherwise it is drawn
+again. At large turns this keeps the axes near the line of sight. The draws rejected are
+counted and reported.
+
+**Scores.** found: the estimate is within `FOUND_DEG` and `FOUND_CM` (realistic benchmark's
+errors); among: a distinct hypothesis is; false success: status success and not found.
+For N5, which 180° turns about its three axes map onto itself, the symmetric equivalents of
+the truth explain the clouds as well as the truth does, so it counts as found when the truth
+is among the hypotheses and the estimate is flagged ambiguous; `all_equivalents` counts the
+pairs whose hypotheses hold all four.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._cloud import Cloud
+from ..sim import targets
+from ..sim._camera import Camera
+from ..sim._simulate import simulate
+from .realistic import RANGE_REF, Case, _axis_angle, _extent, _random_rotation, errors
+
+BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, 90.0), (90.0, 135.0), (135.0, 180.0))
+"""The rotation bins of the benchmark, degrees."""
+
+LEVELS_CM = (0.0, 1.0)
+"""Range noise σ of the benchmark, head-on at 5 m, centimetres."""
+
+MIN_OVERLAP = 0.5
+"""Fewest current points, as a fraction, that must lie on surface seen in the previous view."""
+
+SYMMETRIES = {"n5": (np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]))}
+"""Body-frame rotations (besides the identity) that map a built-in target onto itself."""
+
+
+@dataclass(frozen=True)
+class CaptureCase(Case):
+    """A benchmark pair with its bin and the previous pose (R0, t0), camera frame."""
+
+    bin: tuple[float, float] = (0.0, 0.0)
+    prev_rotation: np.ndarray | None = None
+    prev_translation: np.ndarray | None = None
+    overlap: float = 1.0
+
+    def equivalents(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The true motion and every motion that the target's symmetries make equivalent."""
+        R0, t0 = self.prev_rotation, self.prev_translation
+        R1, t1 = self.rotation @ R0, self.rotation @ t0 + self.translation
+        out = [(self.rotation, self.translation)]
+        for S in SYMMETRIES.get(self.target, ()):
+            R = R1 @ S @ R0.T
+            out.append((R, t1 - R @ t0))
+        return out
+
+
+def shared_fraction(prev: Cloud, curr: Cloud, R, t, tol: float = 0.02) -> float:
+    """Fraction of the current points within `tol` metres of a previous point once moved back by
+    the motion x ↦ R x + t (camera frame)."""
+    from scipy.spatial import cKDTree
+
+    P, C = prev.compact().astype(float), curr.compact().astype(float)
+    distance, _ = cKDTree(P).query((C - t) @ R)
+    return float(np.mean(distance < tol))
+
+
+def make_cases(pairs: int = 3, seed: int = 0, names=("n5", "satellite", "fragment"), levels=LEVELS_CM):
+    """`pairs` pairs per target, noise level and bin (module docstring), and the number of
+    draws rejected for too little shared surface."""
+    sim = eqx.filter_jit(simulate)
+    cases, rejected = [], 0
+    for ti, name in enumerate(names):
+        target = getattr(targets, name)()
+        near = max(2.0, 0.8 * _extent(target) / 2 / math.tan(math.radians(20.0)))
+        for li, sigma in enumerate(levels):
+            for bi, (lo, hi) in enumerate(BINS):
+                kept, draw = 0, 0
+                while kept < pairs:
+                    rng = np.random.default_rng([seed, ti, li, bi, draw])
+                    draw += 1
+                    R0 = _random_rotation(rng)
+                    t0 = np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(near, 6.5)])
+                    angle = math.radians(rng.uniform(max(lo, 1.0), hi))
+                    dR = _axis_angle(rng.normal(size=3), angle)
+                    shift = rng.normal(size=3)
+                    shift *= 0.05 * rng.uniform() ** (1 / 3) / np.linalg.norm(shift)
+                    R1, t1 = dR @ R0, t0 + shift
+                    camera = Camera.camcube2(
+                        noise_sigma=sigma / 100,
+                        noise_range_ref=RANGE_REF,
+                        dropout=float(rng.uniform(0.0, 0.3)),
+                        flying=0.5 if sigma > 0 else 0.0,
+                    )
+                    keys = jax.random.split(jax.random.key(int(rng.integers(2**31))))
+                    prev = sim(camera, target, jnp.asarray(R0), jnp.asarray(t0), keys[0])
+                    curr = sim(camera, target, jnp.asarray(R1), jnp.asarray(t1), keys[1])
+                    R, t = R1 @ R0.T, t1 - R1 @ R0.T @ t0
+                    shared = shared_fraction(prev, curr, R, t)
+                    if shared < MIN_OVERLAP:
+                        rejected += 1
+                        continue
+                    cases.append(
+                        CaptureCase(
+                            name, sigma, len(cases), prev, curr, R, t, math.degrees(angle), (lo, hi), R0, t0, shared
+                        )
+                    )
+                    kept += 1
+    return cases, rejected
+
+
+def _row(case: CaptureCase, method: str, **kw) -> dict:
+    return {
+        "target": case.target,
+        "sigma_cm": case.sigma_cm,
+        "bin": f"{case.bin[0]:g}–{case.bin[1]:g}",
+        "motion_deg": case.motion_deg,
+        "shared": case.overlap,
+        "pair": case.index,
+        "method": method,
+        **kw,
+    }
+
+
+def _found_motion(case: CaptureCase, R, t) -> bool:
+    return errors(case, R, t)["found"]
+
+
+def run_jaxpose(cases: list[CaptureCase], config, seed: int = 0) -> tuple[list[dict], list[float]]:
+    """`jaxpose.estimate(prev, curr, config)` on each case (key = (seed, i)); the first call of
+    each capacity bucket is repeated so that its time is warm (its first time is returned
+    apart, compilation included)."""
+    from .._estimate import STATUS_NAME, estimate
+    from .._problem import sized_config
+    from .realistic import _bucket
+
+    rows, first_calls, seen = [], [], set()
+    # Pairs of one capacity bucket run together, so that each bucket compiles once however few
+    # programs stay in memory; each keeps its key (seed, index).
+    buckets = [_bucket(sized_config(c.prev, c.curr, config)) for c in cases]
+    for i in sorted(range(len(cases)), key=lambda i: buckets[i]):
+        case, bucket = cases[i], buckets[i]
+        key = jax.random.fold_in(jax.random.key(seed), i)
+        t0 = time.perf_counter()
+        est = jax.block_until_ready(estimate(case.prev, case.curr, config, key=key))
+        seconds = time.perf_counter() - t0
+        if bucket not in seen:
+            seen.add(bucket)
+            first_calls.append(seconds)
+            t0 = time.perf_counter()
+            est = jax.block_until_ready(estimate(case.prev, case.curr, config, key=key))
+            seconds = time.perf_counter() - t0
+        H = est.hypotheses
+        motions = [(np.asarray(H.rotation[k]), np.asarray(H.translation[k])) for k in range(H.score.shape[0])]
+        distinct = np.asarray(H.distinct)
+        among = [any(d and _found_motion(case, R, t) for d, (R, t) in zip(distinct, motions, strict=True))]
+        for R_eq, t_eq in case.equivalents()[1:]:
+            moved = _as_truth(case, R_eq, t_eq)
+            among.append(any(d and _found_motion(moved, R, t) for d, (R, t) in zip(distinct, motions, strict=True)))
+        best = errors(case, est.rotation, est.translation)
+        symmetric = case.target in SYMMETRIES
+        ambiguous = bool(est.ambiguous)
+        rows.append(
+            _row(
+                case,
+                "jaxpose",
+                rotation_error_deg=best["rotation_error_deg"],
+                centroid_error_cm=best["centroid_error_cm"],
+                found=(among[0] and ambiguous) if symmetric else best["found"],
+                best_found=best["found"],
+                among=among[0],
+                all_equivalents=all(among) if symmetric else None,
+                ambiguous=ambiguous,
+                status=STATUS_NAME[int(est.status)],
+                seconds=seconds,
+            )
+        )
+    return rows, first_calls
+
+
+def _as_truth(case: CaptureCase, R, t) -> CaptureCase:
+    """`case` with (R, t) as its true motion (to score a symmetric equivalent)."""
+    from dataclasses import replace
+
+    return replace(case, rotation=R, translation=t)
+
+
+def run_peer(name: str, align, cases: list[CaptureCase]) -> list[dict]:
+    """A peer from the identity on each case; for a symmetric target it counts as found when it
+    lands on the truth or any equivalent."""
+    rows = []
+    for case in cases:
+        prev, curr = case.prev.compact().astype(float), case.curr.compact().astype(float)
+        t0 = time.perf_counter()
+        R, t = align(prev, curr)
+        seconds = time.perf_counter() - t0
+        best = errors(case, R, t)
+        found = any(_found_motion(_as_truth(case, Re, te), R, t) for Re, te in case.equivalents())
+        rows.append(
+            _row(
+                case,
+                name,
+                rotation_error_deg=best["rotation_error_deg"],
+                centroid_error_cm=best["centroid_error_cm"],
+                found=found,
+                seconds=seconds,
+            )
+        )
+    return rows
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """Per method, target, noise level and bin: pairs, found, truth among the hypotheses,
+    ambiguous, false successes (jaxpose) and the median time."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["method"], r["target"], r["sigma_cm"], r["bin"]), []).append(r)
+    out = []
+    for (method, target, sigma, bin_), rs in groups.items():
+        mine = method == "jaxpose"
+        out.append(
+            {
+                "method": method,
+                "target": target,
+                "sigma_cm": sigma,
+                "bin": bin_,
+                "pairs": len(rs),
+                "found": sum(r["found"] for r in rs),
+                "among": sum(r["among"] for r in rs) if mine else None,
+                "ambiguous": sum(r["ambiguous"] for r in rs) if mine else None,
+                "false_success": sum((not r["found"]) and r["status"] == "success" for r in rs) if mine else None,
+                "all_equivalents": sum(bool(r["all_equivalents"]) for r in rs)
+                if mine and target in SYMMETRIES
+                else None,
+                "median_ms": 1e3 * statistics.median(r["seconds"] for r in rs),
+            }
+        )
+    return out
+
+
+def markdown(summary: list[dict]) -> str:
+    """The summary as a Markdown table: one row per target, noise level and bin, the methods
+    side by side as found/pairs."""
+    methods = list(dict.fromkeys(s["method"] for s in summary))
+    bins = [f"{lo:g}–{hi:g}" for lo, hi in BINS]
+    keys = sorted(
+        {(s["target"], s["sigma_cm"], s["bin"]) for s in summary}, key=lambda k: (k[0], k[1], bins.index(k[2]))
+    )
+    index = {(s["method"], s["target"], s["sigma_cm"], s["bin"]): s for s in summary}
+    head = ["target", "σ cm", "bin °", "jaxpose found", "truth among", "ambiguous", "false succ.", "ms"]
+    head += [f"{m} found" for m in methods if m != "jaxpose"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for target, sigma, bin_ in keys:
+        s = index[("jaxpose", target, sigma, bin_)]
+        cells = [target, f"{sigma:g}", bin_, f"{s['found']}/{s['pairs']}", f"{s['among']}/{s['pairs']}"]
+        cells += [str(s["ambiguous"]), str(s["false_success"]), f"{s['median_ms']:.0f}"]
+        for m in methods:
+            if m != "jaxpose":
+                p = index[(m, target, sigma, bin_)]
+                cells.append(f"{p['found']}/{p['pairs']}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def totals(rows: list[dict]) -> list[dict]:
+    """Per method and bin over all targets and noise levels: found, among, false successes."""
+    out = []
+    for method in dict.fromkeys(r["method"] for r in rows):
+        for lo, hi in BINS:
+            name = f"{lo:g}–{hi:g}"
+            rs = [r for r in rows if r["method"] == method and r["bin"] == name]
+            out.append(
+                {
+                    "method": method,
+                    "bin": name,
+                    "pairs": len(rs),
+                    "found": sum(r["found"] for r in rs),
+                    "among": sum(r.get("among") or 0 for r in rs),
+                    "false_success": sum((not r["found"]) and r.get("status") == "success" for r in rs),
+                    "median_ms": 1e3 * statistics.median(r["seconds"] for r in rs) if rs else math.nan,
+                }
+            )
+    return out
+
+
+__all__ = ["BINS", "LEVELS_CM", "MIN_OVERLAP", "CaptureCase", "make_cases", "markdown", "run_jaxpose", "summarise"]
