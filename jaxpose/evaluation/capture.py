@@ -32,14 +32,12 @@ from dataclasses import dataclass
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .._cloud import Cloud
 from ..sim import targets
-from ..sim._camera import Camera
 from ..sim._simulate import simulate
-from .realistic import RANGE_REF, Case, _axis_angle, _extent, _random_rotation, errors
+from .realistic import Case, draw_pair, errors, nearest_distance, timed_align
 
 BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, 90.0), (90.0, 135.0), (135.0, 180.0))
 """The rotation bins of the benchmark, degrees."""
@@ -91,37 +89,33 @@ def make_cases(pairs: int = 3, seed: int = 0, names=("n5", "satellite", "fragmen
     cases, rejected = [], 0
     for ti, name in enumerate(names):
         target = getattr(targets, name)()
-        near = max(2.0, 0.8 * _extent(target) / 2 / math.tan(math.radians(20.0)))
+        near = nearest_distance(target)
         for li, sigma in enumerate(levels):
             for bi, (lo, hi) in enumerate(BINS):
                 kept, draw = 0, 0
                 while kept < pairs:
                     rng = np.random.default_rng([seed, ti, li, bi, draw])
                     draw += 1
-                    R0 = _random_rotation(rng)
-                    t0 = np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(near, 6.5)])
-                    angle = math.radians(rng.uniform(max(lo, 1.0), hi))
-                    dR = _axis_angle(rng.normal(size=3), angle)
-                    shift = rng.normal(size=3)
-                    shift *= 0.05 * rng.uniform() ** (1 / 3) / np.linalg.norm(shift)
-                    R1, t1 = dR @ R0, t0 + shift
-                    camera = Camera.camcube2(
-                        noise_sigma=sigma / 100,
-                        noise_range_ref=RANGE_REF,
-                        dropout=float(rng.uniform(0.0, 0.3)),
-                        flying=0.5 if sigma > 0 else 0.0,
-                    )
-                    keys = jax.random.split(jax.random.key(int(rng.integers(2**31))))
-                    prev = sim(camera, target, jnp.asarray(R0), jnp.asarray(t0), keys[0])
-                    curr = sim(camera, target, jnp.asarray(R1), jnp.asarray(t1), keys[1])
-                    R, t = R1 @ R0.T, t1 - R1 @ R0.T @ t0
+                    d = draw_pair(sim, target, near, sigma, rng, max(lo, 1.0), hi)
+                    prev, curr, R, t = d.prev, d.curr, d.rotation, d.translation
                     shared = shared_fraction(prev, curr, R, t)
                     if shared < MIN_OVERLAP:
                         rejected += 1
                         continue
                     cases.append(
                         CaptureCase(
-                            name, sigma, len(cases), prev, curr, R, t, math.degrees(angle), (lo, hi), R0, t0, shared
+                            name,
+                            sigma,
+                            len(cases),
+                            prev,
+                            curr,
+                            R,
+                            t,
+                            math.degrees(d.angle),
+                            (lo, hi),
+                            d.prev_rotation,
+                            d.prev_translation,
+                            shared,
                         )
                     )
                     kept += 1
@@ -209,10 +203,7 @@ def run_peer(name: str, align, cases: list[CaptureCase]) -> list[dict]:
     lands on the truth or any equivalent."""
     rows = []
     for case in cases:
-        prev, curr = case.prev.compact().astype(float), case.curr.compact().astype(float)
-        t0 = time.perf_counter()
-        R, t = align(prev, curr)
-        seconds = time.perf_counter() - t0
+        R, t, seconds = timed_align(align, case)
         best = errors(case, R, t)
         found = any(_found_motion(_as_truth(case, Re, te), R, t) for Re, te in case.equivalents())
         rows.append(

@@ -29,6 +29,7 @@ import statistics
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -93,34 +94,58 @@ def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
 
 
+class Drawn(NamedTuple):
+    """One simulated pair of `draw_pair`: the clouds, the true motion x ↦ R x + t and the
+    previous pose (R0, t0), camera frame, and the turn's angle (radians)."""
+
+    prev: Cloud
+    curr: Cloud
+    rotation: np.ndarray
+    translation: np.ndarray
+    angle: float
+    prev_rotation: np.ndarray
+    prev_translation: np.ndarray
+
+
+def draw_pair(sim, target, near: float, sigma: float, rng: np.random.Generator, low_deg: float, high_deg: float):
+    """A pair as the module docstring describes, with a turn drawn uniformly from
+    [`low_deg`, `high_deg`] degrees; `sim` is (a jitted) `simulate`, σ in centimetres."""
+    R0 = _random_rotation(rng)
+    t0 = np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(near, 6.5)])
+    angle = math.radians(rng.uniform(low_deg, high_deg))
+    dR = _axis_angle(rng.normal(size=3), angle)
+    shift = rng.normal(size=3)
+    shift *= 0.05 * rng.uniform() ** (1 / 3) / np.linalg.norm(shift)
+    R1, t1 = dR @ R0, t0 + shift
+    camera = Camera.camcube2(
+        noise_sigma=sigma / 100,
+        noise_range_ref=RANGE_REF,
+        dropout=float(rng.uniform(0.0, 0.3)),
+        flying=0.5 if sigma > 0 else 0.0,
+    )
+    keys = jax.random.split(jax.random.key(int(rng.integers(2**31))))
+    prev = sim(camera, target, jnp.asarray(R0), jnp.asarray(t0), keys[0])
+    curr = sim(camera, target, jnp.asarray(R1), jnp.asarray(t1), keys[1])
+    return Drawn(prev, curr, R1 @ R0.T, t1 - R1 @ R0.T @ t0, angle, R0, t0)
+
+
+def nearest_distance(target) -> float:
+    """The benchmark's nearest distance for a target (metres): 2 m, or where 80 % of its
+    largest extent fills the 40° field."""
+    return max(2.0, 0.8 * _extent(target) / 2 / math.tan(math.radians(20.0)))
+
+
 def make_cases(pairs: int = 8, seed: int = 0, names=targets.BUILT_IN, levels=LEVELS_CM) -> list[Case]:
     """`pairs` pairs for every target and noise level (see the module docstring)."""
     cases = []
+    sim = eqx.filter_jit(simulate)
     for ti, name in enumerate(names):
         target = getattr(targets, name)()
-        near = max(2.0, 0.8 * _extent(target) / 2 / math.tan(math.radians(20.0)))
-        sim = eqx.filter_jit(simulate)
+        near = nearest_distance(target)
         for li, sigma in enumerate(levels):
             for i in range(pairs):
-                rng = np.random.default_rng([seed, ti, li, i])
-                R0 = _random_rotation(rng)
-                t0 = np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(near, 6.5)])
-                angle = math.radians(rng.uniform(1.0, 15.0))
-                dR = _axis_angle(rng.normal(size=3), angle)
-                shift = rng.normal(size=3)
-                shift *= 0.05 * rng.uniform() ** (1 / 3) / np.linalg.norm(shift)
-                R1, t1 = dR @ R0, t0 + shift
-                camera = Camera.camcube2(
-                    noise_sigma=sigma / 100,
-                    noise_range_ref=RANGE_REF,
-                    dropout=float(rng.uniform(0.0, 0.3)),
-                    flying=0.5 if sigma > 0 else 0.0,
-                )
-                keys = jax.random.split(jax.random.key(int(rng.integers(2**31))))
-                prev = sim(camera, target, jnp.asarray(R0), jnp.asarray(t0), keys[0])
-                curr = sim(camera, target, jnp.asarray(R1), jnp.asarray(t1), keys[1])
-                R, t = R1 @ R0.T, t1 - R1 @ R0.T @ t0
-                cases.append(Case(name, sigma, i, prev, curr, R, t, math.degrees(angle)))
+                d = draw_pair(sim, target, near, sigma, np.random.default_rng([seed, ti, li, i]), 1.0, 15.0)
+                cases.append(Case(name, sigma, i, d.prev, d.curr, d.rotation, d.translation, math.degrees(d.angle)))
     return cases
 
 
@@ -225,13 +250,18 @@ PEERS = {"small_gicp GICP": ("small_gicp", gicp), "Open3D point-to-plane ICP": (
 """The peers of the benchmark: name → (the module it needs, the aligner)."""
 
 
+def timed_align(align, case: Case) -> tuple[np.ndarray, np.ndarray, float]:
+    """A peer's motion (R, t) on a case's valid points, and the seconds it took."""
+    prev, curr = case.prev.compact().astype(float), case.curr.compact().astype(float)
+    t0 = time.perf_counter()
+    R, t = align(prev, curr)
+    return R, t, time.perf_counter() - t0
+
+
 def run_peer(name: str, align, cases: list[Case], progress: Callable[[], None] | None = None) -> list[dict]:
     rows = []
     for case in cases:
-        prev, curr = case.prev.compact().astype(float), case.curr.compact().astype(float)
-        t0 = time.perf_counter()
-        R, t = align(prev, curr)
-        seconds = time.perf_counter() - t0
+        R, t, seconds = timed_align(align, case)
         rows.append(_row(case, name, **errors(case, R, t), seconds=seconds))
         if progress is not None:
             progress()
