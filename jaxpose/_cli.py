@@ -103,7 +103,8 @@ def sweep(
     ),
     trials: Annotated[int, typer.Option(help="Random pairs per value.")] = 10,
     preset: Annotated[
-        str, typer.Option(help="Config preset: default (also called accurate), fast, wide, tracking or paper.")
+        str,
+        typer.Option(help="Config preset: default (also called accurate), fast, wide, capture, tracking or paper."),
     ] = "default",
     seed: Annotated[int, typer.Option(help="PRNG seed of the pairs and the search.")] = 0,
     out: Annotated[Path, typer.Option(help="Folder for sweep_<preset>.{json,png}.")] = Path("results"),
@@ -274,7 +275,7 @@ def bench(
 
 def _preset(name: str, **capacities: int):
     """The named Config preset ("default" or its older name "accurate", "fast", "paper", "wide",
-    "tracking") with the given capacities (those not given are sized from the data)."""
+    "capture", "tracking") with the given capacities (those not given are sized from the data)."""
     from . import Capacities, Config
 
     presets = {
@@ -283,6 +284,7 @@ def _preset(name: str, **capacities: int):
         "fast": Config.fast,
         "paper": Config.paper,
         "wide": Config.wide,
+        "capture": Config.capture,
         "tracking": Config.tracking,
     }
     if name not in presets:
@@ -306,7 +308,8 @@ def estimate(
     prev: Annotated[Path, typer.Argument(help="Previous cloud (PLY, PCD, NPY, NPZ or CSV; camera frame, metres).")],
     curr: Annotated[Path, typer.Argument(help="Current cloud, same formats.")],
     preset: Annotated[
-        str, typer.Option(help="Config preset: default (also called accurate), fast, wide, tracking or paper.")
+        str,
+        typer.Option(help="Config preset: default (also called accurate), fast, wide, capture, tracking or paper."),
     ] = "default",
     seed: Annotated[int, typer.Option(help="PRNG seed of the global search.")] = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of a table.")] = False,
@@ -314,7 +317,7 @@ def estimate(
     """Displacement of the target between two cloud files, with its status.
 
     Prints p in the plane frame n (degrees, cm) and the motion x ↦ R x + t in the camera frame
-    (R as angles in degrees, t in cm). Exit code 0 on success, 1 for any other status, 2 for
+    (R as angles in degrees, t in cm), and any other distinct hypothesis (`--preset capture`). Exit code 0 on success, 1 for any other status, 2 for
     unreadable or unusable input.
     """
     import json
@@ -346,6 +349,22 @@ def estimate(
         },
         "hard_score": float(result.hard),
         "soft_score": float(result.soft),
+        "ambiguous": bool(result.ambiguous),
+        "hypotheses": [
+            {
+                "rotation_angles_deg": np.degrees(np.asarray(angles(R), float)).tolist(),
+                "translation_cm": (100 * np.asarray(t, float)).tolist(),
+                "score": float(score),
+            }
+            for R, t, score, distinct in zip(
+                result.hypotheses.rotation,
+                result.hypotheses.translation,
+                result.hypotheses.score,
+                result.hypotheses.distinct,
+                strict=True,
+            )
+            if bool(distinct)
+        ],
     }
     if as_json:
         typer.echo(json.dumps(out, indent=2))
@@ -357,6 +376,8 @@ def estimate(
         typer.echo(f"camera   θ φ ψ °  {fmt(out['camera_frame']['rotation_angles_deg'])}")
         typer.echo(f"camera   t cm     {fmt(out['camera_frame']['translation_cm'])}")
         typer.echo(f"hard f {out['hard_score']:.4f}   soft f {out['soft_score']:.4f}")
+        for k, h in enumerate(out["hypotheses"][1:], start=2):
+            typer.echo(f"hypothesis {k}: camera θ φ ψ ° {fmt(h['rotation_angles_deg'])}  score {h['score']:.3f}")
     raise typer.Exit(0 if out["status"] == 0 else 1)
 
 

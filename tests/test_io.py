@@ -90,6 +90,11 @@ def test_estimate_command_on_files(saved_pair, paper_clouds, monkeypatch, tmp_pa
     R = np.array(out["camera_frame"]["rotation_matrix"])
     assert np.degrees(float(jp.rotation_angle(R, R_true))) < 0.5
     assert (result.exit_code == 0) == (out["status"] == 0)
+    # The distinct hypotheses, the estimate first (degrees and centimetres at this boundary).
+    first = out["hypotheses"][0]
+    np.testing.assert_allclose(first["rotation_angles_deg"], out["camera_frame"]["rotation_angles_deg"])
+    np.testing.assert_allclose(first["translation_cm"], out["camera_frame"]["translation_cm"])
+    assert out["ambiguous"] in (True, False)
 
 
 def test_estimate_command_rejects_bad_input(saved_pair, tmp_path):
