@@ -34,7 +34,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._batch import score_batch
 from ._config import Config
-from ._fine import NEIGHBOUR_VOXEL, FineResult, fine_refine, neighbourhood_planes
+from ._fine import NEIGHBOUR_VOXEL, fine_refine, neighbourhood_planes
 from ._neighbours import nearest, spread_subset, voxel_grid, voxel_spacing
 from ._problem import Problem
 from ._rotations import angles, rotation, rotation_angle, signed_permutations, super_fibonacci
@@ -85,6 +85,12 @@ class CaptureResult(eqx.Module):
 def camera_in_frame_n(problem: Problem) -> Float[Array, "3"]:
     """The camera's centre (the origin of frame c) in frame n, metres."""
     return -problem.frame.axes.T @ problem.frame.origin
+
+
+def current_centroid(problem: Problem) -> Float[Array, "3"]:
+    """The centroid of the valid current points (frame n, metres)."""
+    valid = problem.curr_valid
+    return jnp.sum(jnp.where(valid[None], problem.curr, 0.0), axis=1) / jnp.maximum(jnp.sum(valid), 1)
 
 
 def _towards(normals: Float[Array, "3 S"], points: Float[Array, "3 S"], camera: Float[Array, "3"]):
@@ -150,9 +156,8 @@ def overlap_translation(
 def principal_alignments(problem: Problem) -> Float[Array, "24 3 3"]:
     """The rotations G^n_ν that carry the previous cloud's principal axes (the axes of frame n)
     onto the current cloud's, under each of the 24 orders and signs of the axes."""
-    b, valid = problem.curr, problem.curr_valid
-    count = jnp.maximum(jnp.sum(valid), 1)
-    centred = jnp.where(valid[None], b - (jnp.sum(jnp.where(valid[None], b, 0.0), axis=1) / count)[:, None], 0.0)
+    valid = problem.curr_valid
+    centred = jnp.where(valid[None], problem.curr - current_centroid(problem)[:, None], 0.0)
     _, U = jnp.linalg.eigh(centred @ centred.T)
     U = U.at[:, 2].set(jnp.cross(U[:, 0], U[:, 1]))  # a proper rotation
     return jnp.einsum("ij,sjk->sik", U, signed_permutations().astype(U.dtype))
@@ -166,8 +171,7 @@ def candidate_displacements(
     current centroid), and the rotations G^n_ν themselves."""
     Gs = jnp.concatenate([super_fibonacci(rotations).astype(problem.d.dtype), principal_alignments(problem)])
     camera = camera_in_frame_n(problem)
-    valid = problem.curr_valid
-    centroid = jnp.sum(jnp.where(valid[None], problem.curr, 0.0), axis=1) / jnp.maximum(jnp.sum(valid), 1)
+    centroid = current_centroid(problem)
 
     def translation(G):
         guess = overlap_translation(G, centroid, prev, curr, camera)
@@ -233,9 +237,9 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
     ps, Gs = candidate_displacements(problem, so3.rotations, prev, curr)
     scores = score_batch(ps, problem.search_problem, so3.objective, chunk=64)
     modes, _ = distinct_best(scores, Gs, so3.modes, math.radians(so3.separation_deg), min(ps.shape[0], 64 * so3.modes))
-    coarse = config.coarse_config if config.search.coarse_factor > 1 else config
-    refined = jax.lax.map(lambda p: local_refine(problem.search_problem, coarse, p).params, ps[modes])
-    refined_scores = jax.vmap(lambda p: score_batch(p[None], problem.search_problem, "soft")[0])(refined)
+    # The refine reads only `Config.refine`, which the coarse config shares.
+    refined = jax.lax.map(lambda p: local_refine(problem.search_problem, config, p).params, ps[modes])
+    refined_scores = score_batch(refined, problem.search_problem, "soft")
     refined_G = jax.vmap(lambda p: rotation(*p[:3]))(refined)
     top, filled = distinct_best(refined_scores, refined_G, so3.hypotheses, math.radians(so3.separation_deg), so3.modes)
     wide, narrow = _hypothesis_configs(config)
@@ -275,11 +279,6 @@ def rank_distinct(params: Float[Array, "k 6"], score: Float[Array, " k"], separa
     score = jnp.where(distinct, score, -1.0)
     order = jnp.argsort(-score)
     return params[order], score[order], distinct[order]
-
-
-def full_fit(problem: Problem, config: Config, capture: CaptureResult) -> FineResult:
-    """The configured fine stage from the best hypothesis."""
-    return fine_refine(problem, config, capture.params[0])
 
 
 __all__ = ["CaptureResult", "capture_search", "consistency", "distinct_best", "overlap_translation"]

@@ -317,8 +317,8 @@ def estimate(
     """Displacement of the target between two cloud files, with its status.
 
     Prints p in the plane frame n (degrees, cm) and the motion x ↦ R x + t in the camera frame
-    (R as angles in degrees, t in cm), and any other distinct hypothesis (`--preset capture`). Exit code 0 on success, 1 for any other status, 2 for
-    unreadable or unusable input.
+    (R as angles in degrees, t in cm), and any other distinct hypothesis (`--preset capture`).
+    Exit code 0 on success, 1 for any other status, 2 for unreadable or unusable input.
     """
     import json
 

@@ -68,7 +68,9 @@ class Hypotheses(eqx.Module):
     - `score`: `(k,)` how well each explains the clouds, 0–1, higher is better: with the
       capture stage (`Config.so3`) the share of the surface each view should see of the other
       that it does see (`jaxpose._capture.consistency`); otherwise the fine stage's inlier
-      fraction. −1 in a slot without a hypothesis of its own.
+      fraction (0 for the estimate when the fine stage's result was dropped for the refine's,
+      1 for the single slot of a config without a fine stage). −1 in a slot without a
+      hypothesis of its own.
     - `distinct`: `(k,)` whether the slot holds one (False: a repeat of a better one, or none).
 
     Slot 0 is the estimate itself.

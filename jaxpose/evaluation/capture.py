@@ -27,17 +27,15 @@ from __future__ import annotations
 
 import math
 import statistics
-import time
 from dataclasses import dataclass
 
 import equinox as eqx
-import jax
 import numpy as np
 
 from .._cloud import Cloud
 from ..sim import targets
 from ..sim._simulate import simulate
-from .realistic import Case, draw_pair, errors, nearest_distance, timed_align
+from .realistic import Case, draw_pair, errors, nearest_distance, timed_align, warm_estimates
 
 BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, 90.0), (90.0, 135.0), (135.0, 180.0))
 """The rotation bins of the benchmark, degrees."""
@@ -143,26 +141,12 @@ def run_jaxpose(cases: list[CaptureCase], config, seed: int = 0) -> tuple[list[d
     """`jaxpose.estimate(prev, curr, config)` on each case (key = (seed, i)); the first call of
     each capacity bucket is repeated so that its time is warm (its first time is returned
     apart, compilation included)."""
-    from .._estimate import STATUS_NAME, estimate
-    from .._problem import sized_config
-    from .realistic import _bucket
+    from .._estimate import STATUS_NAME
 
-    rows, first_calls, seen = [], [], set()
-    # Pairs of one capacity bucket run together, so that each bucket compiles once however few
-    # programs stay in memory; each keeps its key (seed, index).
-    buckets = [_bucket(sized_config(c.prev, c.curr, config)) for c in cases]
-    for i in sorted(range(len(cases)), key=lambda i: buckets[i]):
-        case, bucket = cases[i], buckets[i]
-        key = jax.random.fold_in(jax.random.key(seed), i)
-        t0 = time.perf_counter()
-        est = jax.block_until_ready(estimate(case.prev, case.curr, config, key=key))
-        seconds = time.perf_counter() - t0
-        if bucket not in seen:
-            seen.add(bucket)
-            first_calls.append(seconds)
-            t0 = time.perf_counter()
-            est = jax.block_until_ready(estimate(case.prev, case.curr, config, key=key))
-            seconds = time.perf_counter() - t0
+    rows, first_calls = [], {}
+    for case, est, seconds in warm_estimates(cases, config, seed, first_calls):
+        if isinstance(est, ValueError):
+            raise est
         H = est.hypotheses
         motions = [(np.asarray(H.rotation[k]), np.asarray(H.translation[k])) for k in range(H.score.shape[0])]
         distinct = np.asarray(H.distinct)
@@ -188,7 +172,7 @@ def run_jaxpose(cases: list[CaptureCase], config, seed: int = 0) -> tuple[list[d
                 seconds=seconds,
             )
         )
-    return rows, first_calls
+    return rows, list(first_calls.values())
 
 
 def _as_truth(case: CaptureCase, R, t) -> CaptureCase:

@@ -163,35 +163,45 @@ def _row(case: Case, method: str, **kw) -> dict:
     return {"target": case.target, "sigma_cm": case.sigma_cm, "pair": case.index, "method": method, **kw}
 
 
-def run_jaxpose(cases: list[Case], config=None, seed: int = 0, progress: Callable[[], None] | None = None):
-    """The public `jaxpose.estimate` on each case (key = (seed, i)). Returns the rows and, per
-    capacity bucket met, the first call's time (compilation included)."""
+def warm_estimates(cases: list[Case], config, seed: int, first_calls: dict):
+    """The public `jaxpose.estimate` on each case (key = (seed, i)), yielding (case, estimate,
+    seconds), or (case, the ValueError, None) for a refused pair. Pairs of one capacity bucket
+    run together, so that each bucket compiles once however few programs stay in memory. The
+    first call of each bucket is repeated so that its time is warm; that first time
+    (compilation included) goes into `first_calls`, keyed by the bucket."""
     from .._config import Config
-    from .._estimate import STATUS_NAME, estimate
+    from .._estimate import estimate
     from .._problem import sized_config
 
-    rows, first_calls = [], {}
-    # Pairs of one capacity bucket run together, so that each bucket compiles once however few
-    # programs stay in memory; each keeps its key (seed, index).
     buckets = [_bucket(sized_config(c.prev, c.curr, config or Config())) for c in cases]
     for i in sorted(range(len(cases)), key=lambda i: buckets[i]):
-        case = cases[i]
+        case, bucket = cases[i], buckets[i]
         key = jax.random.fold_in(jax.random.key(seed), i)
         try:
             t0 = time.perf_counter()
             est = jax.block_until_ready(estimate(case.prev, case.curr, config, key=key))
-            first = time.perf_counter() - t0
+            seconds = time.perf_counter() - t0
         except ValueError as err:
-            rows.append(_row(case, "jaxpose", refused=str(err)))
+            yield case, err, None
             continue
-        bucket = buckets[i]
         if bucket not in first_calls:
-            first_calls[bucket] = first
+            first_calls[bucket] = seconds
             t0 = time.perf_counter()
             est = jax.block_until_ready(estimate(case.prev, case.curr, config, key=key))
             seconds = time.perf_counter() - t0
-        else:
-            seconds = first
+        yield case, est, seconds
+
+
+def run_jaxpose(cases: list[Case], config=None, seed: int = 0, progress: Callable[[], None] | None = None):
+    """The public `jaxpose.estimate` on each case ([`warm_estimates`][]). Returns the rows and,
+    per capacity bucket met, the first call's time (compilation included)."""
+    from .._estimate import STATUS_NAME
+
+    rows, first_calls = [], {}
+    for case, est, seconds in warm_estimates(cases, config, seed, first_calls):
+        if isinstance(est, ValueError):
+            rows.append(_row(case, "jaxpose", refused=str(est)))
+            continue
         rows.append(
             _row(
                 case,
