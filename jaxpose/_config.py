@@ -185,10 +185,9 @@ class RotationSearch(eqx.Module):
       surface fit, which pulls in a translation that the grid's overlap estimate left
       centimetres off (the second fit uses `FineStage.inlier`).
     - `tie`: a distinct hypothesis whose consistency is within this of the best's makes the
-      estimate `Status.ambiguous` (0–1). On noise-free N5 pairs of the capture benchmark
-      (exactly symmetric: its equivalent motions explain the clouds equally) the equivalents
-      scored up to 0.05 below the best, through edges, panels that hide one another and
-      sampling; hence 0.06.
+      estimate `Status.ambiguous` (0–1). Our choice, not yet calibrated: the equivalent
+      motions of an exactly symmetric target explain the clouds equally only up to edges,
+      parts that hide one another and sampling, so a margin of a few hundredths.
     """
 
     rotations: int = eqx.field(static=True, default=8192)

@@ -122,8 +122,8 @@ of ψ⁴ = ψ + 4, paired with φ = √2."""
 def super_fibonacci(n: int) -> Float[Array, "n 3 3"]:
     """`n` rotations spread evenly over the whole rotation group: Alexa's super-Fibonacci
     spiral of unit quaternions (CVPR 2022), as matrices (jaxlie). Deterministic; for n = 8192
-    every rotation lies within about 11° of one of them (10.5° at most over 20 000 random
-    rotations; `tests/test_capture.py` checks 11° on 2000)."""
+    every rotation lies within about 11° of one of them (`tests/test_capture.py` checks it on
+    2000 random rotations)."""
     s = jnp.arange(n) + 0.5
     r, R = jnp.sqrt(s / n), jnp.sqrt(1 - s / n)
     alpha = 2 * jnp.pi * s / jnp.sqrt(2.0)

@@ -28,7 +28,7 @@ def test_super_fibonacci_rotations_are_proper_and_cover_the_group():
     np.testing.assert_allclose(np.linalg.det(G), 1.0, atol=1e-12)
     np.testing.assert_array_equal(G, np.asarray(super_fibonacci(8192)))  # deterministic
     # Covering radius, measured against random rotations (an independent sample): every one
-    # lies within 11° of a grid rotation (20 000 random ones: 10.5° at most).
+    # lies within 11° of a grid rotation.
     R = _random_rotations(2000, 0)
     cos = (np.einsum("rij,nij->rn", R, G) - 1) / 2
     nearest = np.degrees(np.arccos(np.clip(cos.max(axis=1), -1, 1)))

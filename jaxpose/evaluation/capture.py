@@ -25,6 +25,7 @@ pairs whose hypotheses hold all four.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 from dataclasses import dataclass
@@ -150,10 +151,11 @@ def run_jaxpose(cases: list[CaptureCase], config, seed: int = 0) -> tuple[list[d
         H = est.hypotheses
         motions = [(np.asarray(H.rotation[k]), np.asarray(H.translation[k])) for k in range(H.score.shape[0])]
         distinct = np.asarray(H.distinct)
-        among = [any(d and _found_motion(case, R, t) for d, (R, t) in zip(distinct, motions, strict=True))]
-        for R_eq, t_eq in case.equivalents()[1:]:
-            moved = _as_truth(case, R_eq, t_eq)
-            among.append(any(d and _found_motion(moved, R, t) for d, (R, t) in zip(distinct, motions, strict=True)))
+        # Per equivalent motion (the truth first): whether a distinct hypothesis lands on it.
+        among = [
+            any(d and _found_motion(_as_truth(case, Re, te), R, t) for d, (R, t) in zip(distinct, motions, strict=True))
+            for Re, te in case.equivalents()
+        ]
         best = errors(case, est.rotation, est.translation)
         symmetric = case.target in SYMMETRIES
         ambiguous = bool(est.ambiguous)
@@ -177,9 +179,7 @@ def run_jaxpose(cases: list[CaptureCase], config, seed: int = 0) -> tuple[list[d
 
 def _as_truth(case: CaptureCase, R, t) -> CaptureCase:
     """`case` with (R, t) as its true motion (to score a symmetric equivalent)."""
-    from dataclasses import replace
-
-    return replace(case, rotation=R, translation=t)
+    return dataclasses.replace(case, rotation=R, translation=t)
 
 
 def run_peer(name: str, align, cases: list[CaptureCase]) -> list[dict]:
