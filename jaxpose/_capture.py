@@ -13,10 +13,18 @@ prior, this stage replaces it (DECISIONS.md is silent on capture; the choices ar
    (the configured refine, soft objective).
 3. **Hypotheses**: the best `RotationSearch.hypotheses` distinct refined modes are fitted to
    the surface by two fine-stage passes on `RotationSearch.points` current points (a wide
-   inlier gate that pulls the translation in, then the configured gate), and ranked by
-   `consistency`: the share of the surface each view should see of the other that it does
-   see. A motion that maps a symmetric target onto itself explains the clouds as well as the
-   truth, so both score alike there; the inlier fraction would instead prefer the larger overlap.
+   inlier gate that pulls the translation in, then the configured gate).
+4. **Half-turn twins** (`symmetric_candidates`): the best fitted hypothesis preceded by a half
+   turn about each axis of the previous surface's normal tensor (`half_turns`), fitted the
+   same way. The grid's scores favour the motion with the most shared surface, so the other
+   motions that a symmetric target's half turns make equivalent rarely come out of it.
+5. **Ranking** by support: the fit's inlier fraction (the share of the current points it
+   explains) times its `consistency` (the share of the surface each view should see of the
+   other that it does see). Either alone fails: a motion that maps a small part of the
+   target onto itself is perfectly consistent on the little it predicts in view, and a
+   motion that lays a large face onto another explains many points while its other faces
+   land where the other view sees nothing. `Estimate.ambiguous` compares the consistencies:
+   a symmetric target's equivalent motions are all consistent, whatever their overlap.
 
 Frames: p and every point here are in the previous cloud's plane frame n (metres, radians);
 the camera, at the origin of frame c, is at −G^c_nᵀ O_n in frame n.
@@ -63,18 +71,23 @@ class Surface(eqx.Module):
 class CaptureResult(eqx.Module):
     """The capture stage's outcome (frame n, radians and metres).
 
-    - `params`: `(k, 6)` the hypotheses' p, best first (fitted on `RotationSearch.points`).
-    - `score`: `(k,)` their `consistency` (0–1); −1 for a slot that repeats a better one.
+    - `params`: `(k, 6)` the hypotheses' p, best first (fitted on `RotationSearch.points`):
+      k = `RotationSearch.hypotheses` fitted modes and the three half-turn twins.
+    - `score`: `(k,)` their support (0–1, module docstring); −1 for a slot that repeats a
+      better one.
+    - `consistency`: `(k,)` their `consistency` (0–1); −1 for a repeat.
     - `distinct`: `(k,)` whether the slot holds a hypothesis of its own (not within half of
       `RotationSearch.separation_deg` of a better one: under range noise, fits from nearby
       modes land a degree or two apart and are one answer).
     - `grid_best`, `grid_score`: the best candidate of the grid and its coarse objective.
-    - `refined`: `(k, 6)` the coarse refine's result the hypothesis started from.
+    - `refined`: `(k, 6)` where each hypothesis's fit started: the coarse refine's result, or
+      the twin's candidate.
     - `evaluations`: objective evaluations of the grid.
     """
 
     params: Float[Array, "k 6"]
     score: Float[Array, " k"]
+    consistency: Float[Array, " k"]
     distinct: Bool[Array, " k"]
     grid_best: Float[Array, "6"]
     grid_score: Float[Array, ""]
@@ -200,6 +213,40 @@ def distinct_best(
     return chosen, jnp.arange(k) < count
 
 
+def half_turns(prev: Surface) -> tuple[Float[Array, "3 3 3"], Float[Array, "3"]]:
+    """The 180° rotations about the three eigenvectors of the previous surface's area-weighted
+    normal tensor Σ w n nᵀ (frame n), and the centre they turn about: the middle of the
+    surface's extent along those axes (metres). On a target built of faces the eigenvectors
+    are the directions its normals cluster about (a box's three axes, whatever share of each
+    face is seen), and the faces seen from one side still span the whole target along each
+    axis, so the middle of the extent is the centre of a half-turn symmetry where the
+    centroid of the seen surface lies towards the camera."""
+    tensor = (prev.normals * prev.weights[None]) @ prev.normals.T
+    _, axes = jnp.linalg.eigh(tensor)
+    along = axes.T @ prev.points
+    live = (prev.weights > 0)[None]
+    middle = (jnp.max(jnp.where(live, along, -jnp.inf), axis=1) + jnp.min(jnp.where(live, along, jnp.inf), axis=1)) / 2
+    turns = 2.0 * jnp.einsum("ia,ja->aij", axes, axes) - jnp.eye(3, dtype=axes.dtype)[None]
+    return turns, axes @ jnp.where(jnp.isfinite(middle), middle, 0.0)
+
+
+def symmetric_candidates(p: Float[Array, "6"], prev: Surface) -> Float[Array, "3 6"]:
+    """The motion p (frame n) preceded by each of `half_turns`: the candidates for the motions
+    that a target's half-turn symmetries would make equivalent to p, to be fitted and scored
+    like any hypothesis. The translation comes from the half turn's centre alone: lining up the
+    shared surface (`overlap_translation`) would count thin plates, which look alike from both
+    sides, as seen after any turn."""
+    G, xyz = rotation(p[0], p[1], p[2]), p[3:]
+    turns, centre = half_turns(prev)
+
+    def candidate(S):
+        G_s = G @ S
+        guess = G @ (centre - S @ centre) + xyz
+        return jnp.concatenate([angles(G_s), guess])
+
+    return jax.vmap(candidate)(turns)
+
+
 def consistency(
     problem: Problem, p: Float[Array, "6"], prev: Surface, curr: Surface, curr_grid, gate
 ) -> Float[Array, ""]:
@@ -242,33 +289,55 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
     refined_scores = score_batch(refined, problem.search_problem, "soft")
     refined_G = jax.vmap(lambda p: rotation(*p[:3]))(refined)
     top, filled = distinct_best(refined_scores, refined_G, so3.hypotheses, math.radians(so3.separation_deg), so3.modes)
-    wide, narrow = _hypothesis_configs(config)
-    gate = jnp.asarray(config.fine.inlier, problem.d.dtype)
-
-    def fit(p):
-        fitted = fine_refine(problem, narrow, fine_refine(problem, wide, p).params).params
-        return fitted, consistency(problem, fitted, prev, curr, curr_grid, gate)
-
-    params, score = jax.lax.map(fit, refined[top])
-    score = jnp.where(filled & jnp.all(jnp.isfinite(params), axis=1), score, -1.0)
-    params, score, distinct = rank_distinct(params, score, math.radians(so3.separation_deg) / 2)
+    fit = _hypothesis_fit(problem, config, prev, curr, curr_grid)
+    params, score, agree = fit(refined[top])
+    score = jnp.where(filled, score, -1.0)
+    twins = symmetric_candidates(params[jnp.argmax(score)], prev)
+    twin_params, twin_score, twin_agree = fit(twins)
+    params, score, distinct, (agree, starts) = rank_distinct(
+        jnp.concatenate([params, twin_params]),
+        jnp.concatenate([score, twin_score]),
+        math.radians(so3.separation_deg) / 2,
+        jnp.concatenate([agree, twin_agree]),
+        jnp.concatenate([refined[top], twins]),
+    )
     best = jnp.argmax(scores)
     return CaptureResult(
         params,
         score,
+        jnp.where(distinct, agree, -1.0),
         distinct,
         ps[best],
         scores[best],
-        refined[top],
+        starts,
         jnp.asarray(ps.shape[0], jnp.int32),
     )
 
 
-def rank_distinct(params: Float[Array, "k 6"], score: Float[Array, " k"], separation) -> tuple:
-    """Hypotheses sorted best first, each within `separation` (radians) of a better one marked
-    as a repeat (score −1, not distinct) and moved behind the distinct ones."""
+def _hypothesis_fit(problem: Problem, config: Config, prev: Surface, curr: Surface, curr_grid):
+    """The fit of a batch of hypotheses `(m, 6)` (frame n): the two surface fits of
+    `_hypothesis_configs`, then each result's support (the fit's inlier fraction times its
+    `consistency`; −1 where the fit is not finite) and its consistency."""
+    wide, narrow = _hypothesis_configs(config)
+    gate = jnp.asarray(config.fine.inlier, problem.d.dtype)
+
+    def one(p):
+        fitted = fine_refine(problem, narrow, fine_refine(problem, wide, p).params)
+        agree = consistency(problem, fitted.params, prev, curr, curr_grid, gate)
+        usable = jnp.all(jnp.isfinite(fitted.params))
+        return fitted.params, jnp.where(usable, fitted.inliers * agree, -1.0), agree
+
+    return lambda ps: jax.lax.map(one, ps)
+
+
+def rank_distinct(params: Float[Array, "k 6"], score: Float[Array, " k"], separation, *carried) -> tuple:
+    """Hypotheses sorted by `score`, best first, each within `separation` (radians) of a better
+    one marked as a repeat (score −1, not distinct) and moved behind the distinct ones; the
+    arrays `carried` (leading axis k) follow the same order. Returns (params, score, distinct,
+    carried)."""
     order = jnp.argsort(-score)
     params, score = params[order], score[order]
+    carried = tuple(c[order] for c in carried)
     G = jax.vmap(lambda p: rotation(*p[:3]))(params)
     k = score.shape[0]
     apart = (
@@ -278,7 +347,7 @@ def rank_distinct(params: Float[Array, "k 6"], score: Float[Array, " k"], separa
     distinct = ~close_to_better & (score >= 0)
     score = jnp.where(distinct, score, -1.0)
     order = jnp.argsort(-score)
-    return params[order], score[order], distinct[order]
+    return params[order], score[order], distinct[order], tuple(c[order] for c in carried)
 
 
 __all__ = ["CaptureResult", "capture_search", "consistency", "distinct_best", "overlap_translation"]

@@ -174,8 +174,8 @@ class RotationSearch(eqx.Module):
       of the two clouds' principal frames are added to it.
     - `objective`: "hard" or "soft", what scores the grid on the coarse problem (static).
     - `modes`: distinct best candidates refined on the coarse problem (static).
-    - `hypotheses`: distinct refined modes fitted to the surface and returned in
-      `Estimate.hypotheses` (static).
+    - `hypotheses`: distinct refined modes fitted to the surface (static); with the three
+      half-turn twins of the best they make the slots of `Estimate.hypotheses`.
     - `separation_deg`: rotations closer than this (degrees) are one mode, among the grid's
       candidates and among the refined modes that become hypotheses; fitted hypotheses closer
       than half of it are one answer (static).
@@ -184,10 +184,11 @@ class RotationSearch(eqx.Module):
     - `wide_inlier`, `wide_rounds`: inlier gate (metres) and rounds of a hypothesis's first
       surface fit, which pulls in a translation that the grid's overlap estimate left
       centimetres off (the second fit uses `FineStage.inlier`).
-    - `tie`: a distinct hypothesis whose consistency is within this of the best's makes the
-      estimate `Status.ambiguous` (0–1). Our choice, not yet calibrated: the equivalent
-      motions of an exactly symmetric target explain the clouds equally only up to edges,
-      parts that hide one another and sampling, so a margin of a few hundredths.
+    - `tie`: a distinct hypothesis whose consistency (`jaxpose._capture.consistency`) is
+      within this of the best's makes the estimate `Status.ambiguous` (0–1). Our choice, not
+      yet calibrated: the equivalent motions of an exactly symmetric target explain the
+      clouds equally only up to edges, parts that hide one another and sampling, so a margin
+      of a few hundredths.
     """
 
     rotations: int = eqx.field(static=True, default=8192)

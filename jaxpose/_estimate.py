@@ -66,8 +66,9 @@ class Hypotheses(eqx.Module):
     - `rotation`, `translation`: `(k, 3, 3)` and `(k, 3)`, the motions in the camera frame,
       x ↦ R x + t, like `Estimate.rotation` and `Estimate.translation`.
     - `score`: `(k,)` how well each explains the clouds, 0–1, higher is better: with the
-      capture stage (`Config.so3`) the share of the surface each view should see of the other
-      that it does see (`jaxpose._capture.consistency`); otherwise the fine stage's inlier
+      capture stage (`Config.so3`) its support, the share of the current points its surface
+      fit explains times the share of the surface each view should see of the other that it
+      does see (`jaxpose._capture.consistency`); otherwise the fine stage's inlier
       fraction (0 for the estimate when the fine stage's result was dropped for the refine's,
       1 for the single slot of a config without a fine stage). −1 in a slot without a
       hypothesis of its own.
@@ -111,7 +112,9 @@ class Estimate(eqx.Module):
       hard score fell more than `FineStage.guard` below the refine's, which then stands).
     - `ambiguous`: two surface fits (from the refine's result and from rest,
       `FineStage.from_rest`) explain the current cloud equally well and their rotations differ
-      by more than `Thresholds.ambiguous_deg`; the result is then `Status.ambiguous`.
+      by more than `Thresholds.ambiguous_deg`; with the capture stage, a distinct hypothesis
+      is as consistent with both views as the best, within `RotationSearch.tie`. The result
+      is then `Status.ambiguous`.
     - `alternative`: p (frame n) of the fit that was not chosen (equal to `params` without
       `FineStage.from_rest` or a fine stage).
     - `hypotheses`: the distinct motions found, best first ([`Hypotheses`][jaxpose.Hypotheses]):
@@ -260,7 +263,8 @@ def _capture_stages(problem: Problem, config: Config):
     p = fine.params
     rest = cap.params[1:]
     runner_up = jnp.argmax(jnp.where(cap.distinct[1:], cap.score[1:], -jnp.inf))
-    ambiguous = cap.distinct[1 + runner_up] & (cap.score[1 + runner_up] >= cap.score[0] - config.so3.tie)
+    rival = jnp.max(jnp.where(cap.distinct[1:], cap.consistency[1:], -jnp.inf))
+    ambiguous = rival >= cap.consistency[0] - config.so3.tie
     glob = GlobalResult(
         cap.grid_best,
         cap.grid_score,

@@ -1,6 +1,6 @@
 """Capture at any rotation (`Config.capture()`, `jaxpose._capture`): the rotation grid, the
-principal alignments, the overlap translation, the consistency score, the hypotheses, and a
-large turn found end to end."""
+principal alignments, the overlap translation, the consistency score, the half-turn twins,
+the hypotheses, a large turn found end to end, and N5's four equivalent motions."""
 
 import math
 
@@ -97,6 +97,62 @@ def test_overlap_translation_is_exact_for_a_shared_surface():
     assert np.linalg.norm(np.asarray(t) - xyz) < 0.02
 
 
+def test_half_turns_are_the_symmetries_of_a_box_seen_from_a_corner():
+    """Three faces of a 1.2 × 0.8 × 0.5 m box (turned and shifted at random, sampled on grids
+    that reach the edges, each face at its own density): the half turns come out about the
+    box's own axes and through its centre, although the seen surface's centroid lies off it,
+    and each maps the whole box surface onto itself."""
+    rng = np.random.default_rng(3)
+    half = np.array([0.6, 0.4, 0.25])
+    R = np.asarray(realistic._random_rotation(rng))
+    centre = rng.uniform(-1, 1, 3)
+    pts, nrm = [], []
+    for axis, count in zip(range(3), (30, 21, 12), strict=True):
+        u, v = [a for a in range(3) if a != axis]
+        gu, gv = np.meshgrid(np.linspace(-half[u], half[u], count), np.linspace(-half[v], half[v], count))
+        p = np.zeros((3, gu.size))
+        p[u], p[v], p[axis] = gu.ravel(), gv.ravel(), half[axis]
+        n = np.zeros((3, gu.size))
+        n[axis] = 1.0
+        pts.append(p)
+        nrm.append(n)
+    local = np.concatenate(pts, 1)
+    P, N = R @ local + centre[:, None], R @ np.concatenate(nrm, 1)
+    turns, middle = capture.half_turns(_surface(P, N))
+    turns = np.asarray(turns)
+    np.testing.assert_allclose(np.asarray(middle), centre, atol=1e-9)
+    assert np.linalg.norm(P.mean(axis=1) - centre) > 0.1  # the seen surface's centroid is off it
+    expected = [R @ np.diag(d) @ R.T for d in ((1.0, -1, -1), (-1, 1.0, -1), (-1, -1, 1.0))]
+    for E in expected:
+        assert min(np.abs(S - E).max() for S in turns) < 1e-9
+    for S in turns:
+        np.testing.assert_allclose(S @ S, np.eye(3), atol=1e-12)
+        moved = R.T @ (S @ (P - centre[:, None]))  # box frame, about the centre
+        assert np.all(np.abs(np.abs(moved) - half[:, None]).min(axis=0) < 1e-9)  # on a face
+        assert np.all(np.abs(moved) <= half[:, None] + 1e-9)
+
+
+def test_capture_reports_every_equivalent_motion_of_n5_and_flags_it():
+    """N5 maps onto itself under half turns about its three axes, so four motions explain a
+    pair. On the capture benchmark's noise-free N5 pair of the 30–60° bin (seed 0), all four are
+    among the distinct hypotheses, the estimate is one of them, and it is flagged ambiguous,
+    never a success."""
+    cases, _ = benchmark.make_cases(1, names=("n5",), levels=(0.0,))
+    case = next(c for c in cases if c.bin == (30.0, 60.0))
+    est = jp.estimate(case.prev, case.curr, jp.Config.capture(), key=jax.random.key(0))
+    H = est.hypotheses
+    distinct = np.asarray(H.distinct)
+    motions = [(np.asarray(H.rotation[k]), np.asarray(H.translation[k])) for k in np.flatnonzero(distinct)]
+    for R, t in case.equivalents():
+        truth = benchmark._as_truth(case, R, t)
+        assert any(realistic.errors(truth, Rh, th)["found"] for Rh, th in motions)
+    assert any(
+        realistic.errors(benchmark._as_truth(case, R, t), est.rotation, est.translation)["found"]
+        for R, t in case.equivalents()
+    )
+    assert bool(est.ambiguous) and not bool(est.success)
+
+
 @pytest.fixture(scope="module")
 def large_turn():
     """The capture benchmark's asymmetric fragment turned 90–135°, noise-free (seed 0)."""
@@ -126,7 +182,7 @@ def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn):
     errors = realistic.errors(large_turn, est.rotation, est.translation)
     assert errors["rotation_error_deg"] < 0.1 and errors["centroid_error_cm"] < 1.0, errors
     H = est.hypotheses
-    k = jp.RotationSearch().hypotheses
+    k = jp.RotationSearch().hypotheses + 3  # the fitted modes and the three half-turn twins
     assert H.rotation.shape == (k, 3, 3) and H.translation.shape == (k, 3) and H.score.shape == (k,)
     np.testing.assert_allclose(np.asarray(H.rotation[0]), np.asarray(est.rotation), atol=1e-12)
     np.testing.assert_allclose(np.asarray(H.translation[0]), np.asarray(est.translation), atol=1e-12)
