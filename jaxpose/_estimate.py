@@ -204,14 +204,20 @@ def within_reach(p: Float[Array, "6"], config: Config) -> Bool[Array, ""]:
 
 
 @eqx.filter_jit
-def estimate_problem(problem: Problem, config: Config, key: PRNGKeyArray) -> Estimate:
-    """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable)."""
+def estimate_problem(
+    problem: Problem, config: Config, key: PRNGKeyArray, guess: Float[Array, "6"] | None = None
+) -> Estimate:
+    """[`estimate`][] on a prepared [`jaxpose.Problem`][] (pure, jitted, vmappable).
+
+    `guess`: p (frame n, radians and metres) of a motion known beforehand, such as a
+    tracker's prediction; the second fit of the fine stage (`FineStage.from_rest`) starts
+    there instead of at rest. Not used by the capture stage."""
     if config.so3 is not None:
         return _finish(problem, config, *_capture_stages(problem, config))
-    return _finish(problem, config, *_box_stages(problem, config, key))
+    return _finish(problem, config, *_box_stages(problem, config, key, guess))
 
 
-def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray):
+def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None):
     """CMA-ES in the search box, the refine, and the fine stage from the refine's result (and
     from rest): the stages of every preset but `Config.capture()`."""
     glob = restarted_search(problem, config, key)
@@ -225,7 +231,8 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray):
         fine = fine_refine(problem, config, loc.params)
         other = fine
         if config.fine.from_rest:
-            rest = fine_refine(problem, config, jnp.zeros_like(loc.params))
+            start = jnp.zeros_like(loc.params) if guess is None else guess.astype(loc.params.dtype)
+            rest = fine_refine(problem, config, start)
             ambiguous = equally_good_and_apart(fine, rest, config)
             fine, other = better_fine(fine, rest), better_fine(rest, fine)
             alternative = other.params

@@ -11,6 +11,7 @@ import pytest
 
 import jaxpose as jp
 from jaxpose import _capture as capture
+from jaxpose._estimate import estimate_problem
 from jaxpose._problem import sized_config
 from jaxpose._rotations import signed_permutations, super_fibonacci
 from jaxpose.evaluation import capture as benchmark
@@ -200,6 +201,27 @@ def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn):
     default = jp.estimate(large_turn.prev, large_turn.curr, key=jax.random.key(0))
     assert not realistic.errors(large_turn, default.rotation, default.translation)["found"]
     assert not bool(default.success)
+
+
+def test_a_guess_starts_the_default_second_surface_fit(large_turn):
+    """`estimate_problem(..., guess=p)`: the default's second surface fit starts at p instead of
+    at rest (a tracker passes its prediction). From the true motion of this turn, beyond the
+    box search's reach, the surface fit lands on it and is the better of the two fits; from
+    rest it does not. The estimate still drops a fit outside the search box (`within_reach`),
+    so it is no success either way."""
+    config = sized_config(large_turn.prev, large_turn.curr, jp.Config())
+    problem = jp.Problem.build(large_turn.prev, large_turn.curr, config)
+    truth = jp.displacement_from_motion(
+        problem.frame.origin, problem.frame.axes, large_turn.rotation, large_turn.translation
+    )
+
+    def fine_found(est):
+        R, t = jp.motion_from_displacement(problem.frame.origin, problem.frame.axes, est.fine.params)
+        return realistic.errors(large_turn, R, t)["found"]
+
+    guided = estimate_problem(problem, config, jax.random.key(0), truth)
+    assert fine_found(guided) and not bool(guided.success)
+    assert not fine_found(estimate_problem(problem, config, jax.random.key(0)))
 
 
 def test_default_estimate_reports_its_two_fits_as_hypotheses(paper_clouds):

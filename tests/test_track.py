@@ -10,17 +10,23 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
+from jaxpose._estimate import AMBIGUOUS, SUCCESS
 from jaxpose.sim import Tumble, paper_pose, simulate_sequence, tumble_poses
 from jaxpose.tracking._track import (
     FILTER_BAD_MEASUREMENT,
+    FILTER_BAD_UPDATE,
     FILTER_NO_ESTIMATE,
     FILTER_UPDATED,
     Chain,
     TrackFilter,
+    _guarded_update,
     _skew,
+    continuity_choice,
+    covariance_usable,
     filter_chain,
     filter_keyframes,
     measurement_usable,
+    predicted_motion,
     track,
 )
 
@@ -251,18 +257,20 @@ def test_random_tumbles_are_rigid_bodies_with_rates_in_range():
         np.testing.assert_allclose(np.asarray(tumble.attitude @ tumble.attitude.T), np.eye(3), atol=1e-6)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_track_with_the_default_config_on_random_tumbles_is_finite_and_near_the_truth(seed):
+@pytest.mark.parametrize(("seed", "guided"), [(0, False), (1, False), (0, True)])
+def test_track_with_the_default_config_on_random_tumbles_is_finite_and_near_the_truth(seed, guided):
     # Property test, short: 6 frames at 12.5 Hz of N5 (1.6 m) on a random tumble with 0–2 cm
-    # range noise, through the public call with no config. Longer ones: the slow test below.
+    # range noise, through the public call with no config, plain and guided by the predicted
+    # motion. Longer ones: the slow test below.
     rng = np.random.default_rng([25, seed])
     dt = 0.08
     tumble = Tumble.random(jax.random.key(100 + seed), 5.5, orbital_camera=bool(seed % 2))
     camera = jp.Camera.camcube2(noise_sigma=rng.uniform(0.0, 0.02))
     seq = simulate_sequence(camera, jp.targets.n5(), tumble, 5 * dt, 1 / dt, key=jax.random.key(seed))
-    result = track(seq.clouds, dt, key=jax.random.key(seed))
+    result = track(seq.clouds, dt, key=jax.random.key(seed), guided=guided)
     assert _all_finite(result)
     assert result.filter_status.shape == (6,)
+    assert guided or not np.any(np.asarray(result.continuity))
     # Frames whose estimate is no success are predicted only (at 2 cm noise some registrations
     # end "not converged"); the filter must still have fused most of them.
     assert np.mean(np.asarray(result.filter_status) == FILTER_UPDATED) >= 0.5
@@ -306,3 +314,65 @@ def test_track_on_longer_random_tumbles_of_benchmark_targets(seed):
     # within 1°.
     std = np.degrees(np.linalg.norm(np.asarray(result.rate_std[-1])))
     assert attitude < 1.0 and rate < 4 * std, (attitude, rate, std)
+
+
+def _screw_pose(k, axis, centre, angle_step, advance):
+    """Frame 0 → k of a constant screw motion (numpy, Rodrigues): a turn of `angle_step` per
+    frame about `axis` through `centre` and an advance of `advance` m per frame along it."""
+    a = axis / np.linalg.norm(axis)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    th = angle_step * k
+    R = np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
+    return R, centre - R @ centre + advance * k * a
+
+
+def test_predicted_motion_extrapolates_a_constant_screw_motion_exactly():
+    """The last two registered frames (2 and 5, three frames apart) of a constant screw motion
+    predict frame 9 against keyframe 3 exactly, as an independent Rodrigues construction gives it."""
+    axis, centre = np.array([0.3, -1.0, 0.5]), np.array([0.2, 0.1, 5.5])
+    pose = lambda k: _screw_pose(k, axis, centre, math.radians(0.7), 0.004)  # noqa: E731
+    (R0, t0), (R1, t1), (Rk, tk), (R9, t9) = pose(2), pose(5), pose(3), pose(9)
+    R, t = predicted_motion((R0, t0, jnp.asarray(2)), (R1, t1, jnp.asarray(5)), (Rk, tk), jnp.asarray(9))
+    R_true = R9 @ Rk.T
+    np.testing.assert_allclose(np.asarray(R), R_true, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(t), t9 - R_true @ tk, atol=1e-9)
+    # With nothing registered but frame 0 (both "last" frames the identity) it predicts rest.
+    eye, zero = np.eye(3), np.zeros(3)
+    R, t = predicted_motion((eye, zero, jnp.asarray(-1)), (eye, zero, jnp.asarray(0)), (eye, zero), jnp.asarray(4))
+    np.testing.assert_allclose(np.asarray(R), eye, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(t), zero, atol=1e-12)
+
+
+def _hypotheses_at(degrees, distinct):
+    about_z = jnp.stack([jaxlie.SO3.from_z_radians(math.radians(d)).as_matrix() for d in degrees])
+    k = len(degrees)
+    return jp.Hypotheses(jnp.zeros((k, 6)), about_z, jnp.zeros((k, 3)), jnp.ones(k), jnp.asarray(distinct))
+
+
+@pytest.mark.parametrize(
+    ("predicted_deg", "status", "distinct", "chosen", "resolved"),
+    [
+        (2.9, AMBIGUOUS, [True, True], 1, True),  # the alternative, 0.1° from the prediction
+        (0.2, AMBIGUOUS, [True, True], 0, True),
+        (1.4, AMBIGUOUS, [True, True], 0, False),  # nearest more than 0.5° away: unresolved
+        (2.9, AMBIGUOUS, [True, False], 0, False),  # a repeat is never chosen
+        (2.9, SUCCESS, [True, True], 1, False),  # only an ambiguous estimate is resolved
+    ],
+)
+def test_continuity_chooses_the_hypothesis_nearest_the_prediction(predicted_deg, status, distinct, chosen, resolved):
+    hypotheses = _hypotheses_at([0.0, 3.0], distinct)
+    R_pred = jaxlie.SO3.from_z_radians(math.radians(predicted_deg)).as_matrix()
+    j, ok = continuity_choice(hypotheses, jnp.asarray(status), R_pred, jp.Config())
+    assert int(j) == chosen and bool(ok) == resolved
+
+
+def test_an_update_whose_covariance_is_not_semidefinite_is_refused():
+    """A filter whose updated covariance came out with a negative variance (float32
+    round-off) keeps its prediction, flagged as a bad update, so no standard deviation is NaN."""
+    predicted = TrackFilter.start(jnp.zeros(3))
+    broken = eqx.tree_at(lambda f: f.cov, predicted, predicted.cov.at[4, 4].set(-1e-3))
+    ok = jnp.asarray(True)
+    kept, code = _guarded_update(predicted, predicted, broken, ok, ok, ok)
+    assert int(code) == FILTER_BAD_UPDATE
+    np.testing.assert_array_equal(np.asarray(kept.cov), np.asarray(predicted.cov))
+    assert not bool(covariance_usable(broken.cov)) and bool(covariance_usable(predicted.cov))

@@ -58,7 +58,6 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from .._estimate import SUCCESS
 from ._track import Track
 
 RATE_WINDOW_S = 0.5
@@ -505,7 +504,7 @@ def identify(
     T = rotations.shape[0]
     translations = track.points - jnp.einsum("tij,j->ti", rotations, track.points[0])
     finite = jnp.all(jnp.isfinite(rotations), axis=(1, 2)) & jnp.all(jnp.isfinite(translations), axis=1)
-    valid = (jnp.asarray(track.status) == SUCCESS) & finite
+    valid = track.registered() & finite
     count = int(jnp.sum(valid))
     if count < MIN_FRAMES:
         raise ValueError(f"identify needs at least {MIN_FRAMES} successfully registered frames, got {count}.")

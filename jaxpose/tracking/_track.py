@@ -5,10 +5,12 @@ chains the motions, [`filter_keyframes`][] (or [`filter_chain`][]) runs a filter
 (cheap, so a filter can be tuned on one set of registrations); [`track`][] is both.
 
 **Chaining.** Frame k is registered against the current keyframe (the first frame, then
-every `keyframe_every` frames), so the motion measured stays inside the search box and the
-errors of frame-to-frame steps do not add up at every frame: only each keyframe switch adds
-its pair's error. The chained motion (R_0k, t_0k) maps frame 0's points to frame k's, in the
-camera frame c.
+every `keyframe_every` frames where that frame is registered), so the motion measured
+stays inside the search box and the errors of frame-to-frame steps do not add up at every
+frame: only each keyframe switch adds its pair's error. With `guided`, each registration
+starts its second surface fit from the motion predicted at a constant rate
+(`predicted_motion`), and an ambiguous one is resolved by that prediction where it can be
+(`continuity_choice`). The chained motion (R_0k, t_0k) maps frame 0's points to frame k's, in the camera frame c.
 
 **State** ([`TrackFilter`][], an `eqx.Module`): the target's rotation since frame 0,
 A = R_0k (on SO(3), error state as a rotation vector on the left), its angular velocity ω
@@ -45,12 +47,13 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 from .._checks import is_concrete
 from .._cloud import Cloud
 from .._config import Config
-from .._estimate import SUCCESS, estimate_problem
+from .._estimate import AMBIGUOUS, SUCCESS, Hypotheses, estimate_problem
 from .._fine import fine_covariance
 from .._frame import plane_frame
-from .._poses import motion_from_displacement
+from .._poses import displacement_from_motion, motion_from_displacement
 from .._problem import Problem, sized_sequence_config
 from .._programs import BoundedJit
+from .._rotations import rotation_angle
 from .._tree import tree_finite, tree_select
 
 FILTER_UPDATED, FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE = 0, 1, 2, 3
@@ -63,7 +66,8 @@ FILTER_STATUS_NAME = {
 """The filter's own per-frame status (`Track.filter_status`): the frame's measurement was fused
 (frame 0, the filter's start, counts as updated); its estimate was no success; the measurement
 or its covariance was unusable (see `measurement_usable`: non-finite, or the covariance not
-symmetric positive semi-definite); or the update itself gave a non-finite state or an innovation covariance that is
+symmetric positive semi-definite); or the update itself gave a non-finite state, a covariance
+that is not positive semi-definite (`covariance_usable`) or an innovation covariance that is
 not positive definite. In every case but the first the frame is a prediction only, so the
 filter's state is never non-finite."""
 
@@ -93,8 +97,14 @@ def measurement_usable(rotation, translation, cov: Float[Array, "6 6"]) -> Bool[
     (condition ≈ 10¹¹), which no float32 Cholesky factor resolves; the measurement still
     carries its information, and the update's own check (a positive definite innovation
     covariance) guards the numerics."""
-    finite = tree_finite((rotation, translation, cov))
-    safe = jnp.where(finite, cov, jnp.eye(6, dtype=cov.dtype))
+    return tree_finite((rotation, translation)) & covariance_usable(cov)
+
+
+def covariance_usable(cov: Float[Array, "n n"]) -> Bool[Array, ""]:
+    """Whether a covariance is finite, symmetric (`SYMMETRY_TOL`), not zero and positive
+    semi-definite to within `PSD_TOL` of its largest eigenvalue (see `measurement_usable`)."""
+    finite = jnp.all(jnp.isfinite(cov))
+    safe = jnp.where(finite, cov, jnp.eye(cov.shape[0], dtype=cov.dtype))
     scale = jnp.max(jnp.abs(safe))
     symmetric = jnp.max(jnp.abs(safe - safe.T)) <= SYMMETRY_TOL * scale
     eig = jnp.linalg.eigvalsh((safe + safe.T) / 2)
@@ -104,8 +114,10 @@ def measurement_usable(rotation, translation, cov: Float[Array, "6 6"]) -> Bool[
 
 def _guarded_update(filt, predicted, updated, estimate_ok, usable, innovation_ok):
     """The updated filter where every check passed, else the prediction; and the frame's
-    filter status (see `FILTER_STATUS_NAME`)."""
-    good_update = innovation_ok & tree_finite(updated)
+    filter status (see `FILTER_STATUS_NAME`). An update whose covariance is no longer positive
+    semi-definite (float32 round-off after a measurement of condition ≈ 10¹¹) is refused, so
+    that no later standard deviation is the root of a negative variance."""
+    good_update = innovation_ok & tree_finite(updated) & covariance_usable(updated.cov)
     status = jnp.select(
         [~estimate_ok, ~usable, ~good_update],
         [FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE],
@@ -149,7 +161,8 @@ def _kalman_step(cov, H, residual, noise):
     S = _innovation(cov, H, noise)
     K = jnp.linalg.solve(S, H @ cov).T
     joseph = jnp.eye(cov.shape[0], dtype=cov.dtype) - K @ H
-    return K @ residual, joseph @ cov @ joseph.T + K @ noise @ K.T
+    updated = joseph @ cov @ joseph.T + K @ noise @ K.T
+    return K @ residual, (updated + updated.T) / 2
 
 
 def _skew(v):
@@ -241,7 +254,11 @@ class Chain(eqx.Module):
     `relative_translations` (camera frame c), their covariance `relative_cov` (6, 6; the
     rotation as a left rotation vector in rad, then the translation in m; from the fine
     stage's least squares scaled by [`COVARIANCE_SCALE`][], identity·1e-4 where the fine
-    stage is off) and `switched` (frame k became the keyframe after its estimate)."""
+    stage is off) and `switched` (frame k became the keyframe after its estimate).
+
+    `continuity` (None: none): frame k's estimate was `ambiguous`, and the measurement is the
+    hypothesis that motion continuity chose (`continuity_choice`); such a frame counts as
+    registered."""
 
     rotations: Float[Array, "T 3 3"]
     translations: Float[Array, "T 3"]
@@ -252,6 +269,7 @@ class Chain(eqx.Module):
     relative_translations: Float[Array, "T 3"]
     relative_cov: Float[Array, "T 6 6"]
     switched: Bool[Array, " T"]
+    continuity: Bool[Array, " T"] | None = None
 
 
 # Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 1.52× too small on N5
@@ -289,7 +307,14 @@ class Track(eqx.Module):
     with the covariance `measurement_cov[k]` (6, 6; a left rotation vector in rad, then the
     translation in m; from the fine stage, as `Chain.relative_cov`). Frames registered
     against one keyframe share its noise; chaining adds each keyframe's error to all later
-    frames. [`jaxpose.identify`][] uses these."""
+    frames. [`jaxpose.identify`][] uses these. `continuity` (as `Chain.continuity`): frames
+    whose ambiguous estimate motion continuity resolved; they count as registered
+    (`registered`)."""
+
+    def registered(self) -> Bool[Array, " T"]:
+        """Frames whose measurement entered the chain: a successful estimate, or an ambiguous
+        one resolved by continuity."""
+        return is_registered(self.status, self.continuity)
 
     rotations: Float[Array, "T 3 3"]
     points: Float[Array, "T 3"]
@@ -303,6 +328,7 @@ class Track(eqx.Module):
     filter_status: Int[Array, " T"]
     keyframes: Int[Array, " T"]
     measurement_cov: Float[Array, "T 6 6"]
+    continuity: Bool[Array, " T"] | None = None
 
 
 class KeyframeFilter(eqx.Module):
@@ -400,7 +426,47 @@ def _clone_cov(P15):
     return T @ P15 @ T.T
 
 
-def chain_estimates(clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_every: int = 25) -> Chain:
+CONTINUITY_FRACTION = 0.5
+"""An ambiguous estimate is resolved by continuity when one of its distinct hypotheses lies
+within this fraction of `Thresholds.ambiguous_deg` of the predicted rotation (the fits of an
+ambiguous estimate are more than `ambiguous_deg` apart, so at most one can)."""
+
+
+def is_registered(status: Int[Array, " T"], continuity: Bool[Array, " T"] | None) -> Bool[Array, " T"]:
+    """A successful estimate, or an ambiguous one that motion continuity resolved."""
+    ok = status == SUCCESS
+    return ok if continuity is None else ok | continuity
+
+
+def continuity_choice(hypotheses: Hypotheses, status: Int[Array, ""], R_pred: Float[Array, "3 3"], config: Config):
+    """The distinct hypothesis of an estimate (its `hypotheses` and `status`) nearest the
+    predicted rotation `R_pred` (keyframe → now, camera frame), and whether it resolves the
+    estimate: the estimate is ambiguous and that hypothesis lies within
+    `CONTINUITY_FRACTION` × `Thresholds.ambiguous_deg` of the prediction. Returns (index,
+    resolved)."""
+    H = hypotheses
+    angle = jnp.where(H.distinct, rotation_angle(H.rotation, jnp.broadcast_to(R_pred, H.rotation.shape)), jnp.inf)
+    j = jnp.argmin(angle)
+    gate = jnp.radians(CONTINUITY_FRACTION * config.thresholds.ambiguous_deg)
+    return j, (status == AMBIGUOUS) & (angle[j] <= gate)
+
+
+def predicted_motion(before, last, keyframe, k):
+    """The motion from the keyframe to frame k (camera frame, x ↦ R x + t) predicted at a
+    constant rate: the screw motion between the last two registered frames, `before` and
+    `last` (each (R, t, index) of the motion from frame 0), carried on from `last` to frame k
+    (SE(3) log and exp, jaxlie). `keyframe` is (R, t) of the keyframe from frame 0."""
+    (R0, t0, k0), (R1, t1, k1), (Rk, tk) = before, last, keyframe
+    pose = lambda R, t: jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(R), t)  # noqa: E731
+    step = (pose(R1, t1) @ pose(R0, t0).inverse()).log() / jnp.maximum(k1 - k0, 1).astype(t1.dtype)
+    ahead = jaxlie.SE3.exp(step * (k - k1).astype(t1.dtype)) @ pose(R1, t1)
+    relative = ahead @ pose(Rk, tk).inverse()
+    return relative.rotation().as_matrix(), relative.translation()
+
+
+def chain_estimates(
+    clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_every: int = 25, guided: bool = False
+) -> Chain:
     """Register each frame against the current keyframe and chain the motions from frame 0.
 
     **Arguments:**
@@ -410,7 +476,11 @@ def chain_estimates(clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_e
     - `config`: the estimate's [`jaxpose.Config`][] (its `max_points` must hold every frame).
     - `key`: frame k's estimate uses `fold_in(key, k)`.
     - `keyframe_every`: frames between keyframe switches (25 = 1 s at 25 Hz); a switch
-      happens only on a successful frame.
+      happens only on a registered frame.
+    - `guided`: pass each estimate the motion predicted at a constant rate
+      (`predicted_motion`) as its `guess`, and resolve an ambiguous estimate by motion
+      continuity (`continuity_choice`). Off by default: on the 20 tumbles of
+      `experiments/tracking_benchmark.py` it did not help (docs, Tracking).
 
     Pure and jittable (`lax.scan` over frames).
     """
@@ -419,36 +489,53 @@ def chain_estimates(clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_e
     eye = jnp.eye(3, dtype=origin.dtype)
 
     def step(carry, inputs):
-        key_cloud, key_R, key_t, last_R, last_t = carry
+        key_cloud, key_R, key_t, last_R, last_t, last_k, before_R, before_t, before_k = carry
         k, cloud = inputs
         problem = Problem.build(key_cloud, cloud, config)
-        est = estimate_problem(problem, config, jax.random.fold_in(key, k))
-        ok = est.status == SUCCESS
-        R = jnp.where(ok, est.rotation @ key_R, last_R)  # chain: frame 0 → keyframe → k
-        t = jnp.where(ok, est.rotation @ key_t + est.translation, last_t)
+        R_pred, t_pred = predicted_motion((before_R, before_t, before_k), (last_R, last_t, last_k), (key_R, key_t), k)
+        guess = displacement_from_motion(problem.frame.origin, problem.frame.axes, R_pred, t_pred) if guided else None
+        est = estimate_problem(problem, config, jax.random.fold_in(key, k), guess)
+        j, resolved = continuity_choice(est.hypotheses, est.status, R_pred, config)
+        resolved = resolved & guided
+        H = est.hypotheses
+        R_rel, t_rel = (
+            jnp.where(resolved, H.rotation[j], est.rotation),
+            jnp.where(resolved, H.translation[j], est.translation),
+        )
+        p = jnp.where(resolved, H.params[j], est.params)
+        ok = (est.status == SUCCESS) | resolved
+        R = jnp.where(ok, R_rel @ key_R, last_R)  # chain: frame 0 → keyframe → k
+        t = jnp.where(ok, R_rel @ key_t + t_rel, last_t)
         if config.fine is None:
             cov = jnp.eye(6, dtype=origin.dtype) * 1e-4
         else:
-            cov = measurement_covariance(problem, config, est.params)
-        usable = measurement_usable(est.rotation, est.translation, cov)
+            cov = measurement_covariance(problem, config, p)
+        usable = measurement_usable(R_rel, t_rel, cov)
         cov = jnp.where(ok & usable, cov, jnp.eye(6, dtype=origin.dtype))  # finite even when unused
         # A keyframe switch needs a usable measurement: the filter clones its state there.
         switch = (k % keyframe_every == 0) & ok & usable
         key_cloud = tree_select(switch, cloud, key_cloud)
         key_R, key_t = jnp.where(switch, R, key_R), jnp.where(switch, t, key_t)
-        out = (R, t, R @ origin + t, est.status, est.rotation, est.translation, cov, switch)
-        return (key_cloud, key_R, key_t, R, t), out
+        out = (R, t, R @ origin + t, est.status, R_rel, t_rel, cov, switch, resolved)
+        # The last two registered frames (frame 0 counts as registered) give the prediction.
+        before = tuple(
+            jnp.where(ok, new, old) for new, old in ((last_R, before_R), (last_t, before_t), (last_k, before_k))
+        )
+        last_k = jnp.where(ok, k, last_k)
+        return (key_cloud, key_R, key_t, R, t, last_k, *before), out
 
     zeros = jnp.zeros(3, origin.dtype)
     frames = jnp.arange(1, clouds.valid.shape[0])
     rest = jax.tree.map(lambda x: x[1:], clouds)
-    _, outs = jax.lax.scan(step, (first, eye, zeros, eye, zeros), (frames, rest))
+    start_k = jnp.asarray(0, frames.dtype)
+    carry = (first, eye, zeros, eye, zeros, start_k, eye, zeros, start_k - 1)
+    _, outs = jax.lax.scan(step, carry, (frames, rest))
     head = (eye, zeros, origin, jnp.asarray(SUCCESS, outs[3].dtype), eye, zeros, jnp.eye(6, dtype=origin.dtype))
-    head = (*head, jnp.asarray(True))
-    R, t, points, status, R_rel, t_rel, cov, switched = (
+    head = (*head, jnp.asarray(True), jnp.asarray(False))
+    R, t, points, status, R_rel, t_rel, cov, switched, continuity = (
         jnp.concatenate([h[None], o]) for h, o in zip(head, outs, strict=True)
     )
-    return Chain(R, t, points, status, origin, R_rel, t_rel, cov, switched)
+    return Chain(R, t, points, status, origin, R_rel, t_rel, cov, switched, continuity)
 
 
 def filter_chain(
@@ -477,20 +564,31 @@ def filter_chain(
     noise = jnp.diag(jnp.concatenate([jnp.full(3, rotation_sigma**2), jnp.full(3, point_sigma**2)]))
 
     def step(filt, inputs):
-        R, point, status = inputs
+        R, point, ok = inputs
         predicted = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
         usable = measurement_usable(R, point, noise)
         updated = predicted.update(R, point, noise)
-        ok = status == SUCCESS
         filt, code = _guarded_update(filt, predicted, updated, ok, usable, predicted.innovation_ok(noise))
         return filt, (*_row(filt), code)
 
     filt = TrackFilter.start(chain.origin, spin_accel_sigma=spin_accel_sigma)
-    _, outs = jax.lax.scan(step, filt, (chain.rotations[1:], chain.points[1:], chain.status[1:]))
+    ok = is_registered(chain.status, chain.continuity)
+    _, outs = jax.lax.scan(step, filt, (chain.rotations[1:], chain.points[1:], ok[1:]))
     head = (*_row(filt), jnp.asarray(FILTER_UPDATED, jnp.int32))
     filtered = (jnp.concatenate([h[None], o]) for h, o in zip(head, outs, strict=True))
+    return _track_of(chain, filtered)
+
+
+def _track_of(chain: Chain, filtered) -> Track:
+    """The `Track` of a chain and the filter's per-frame outputs (`_row`, then the status)."""
     return Track(
-        chain.rotations, chain.points, chain.status, *filtered, keyframe_indices(chain.switched), chain.relative_cov
+        chain.rotations,
+        chain.points,
+        chain.status,
+        *filtered,
+        keyframe_indices(chain.switched),
+        chain.relative_cov,
+        chain.continuity,
     )
 
 
@@ -528,13 +626,12 @@ def filter_keyframes(
     """
 
     def step(filt, inputs):
-        R_rel, t_rel, cov, status, switched = inputs
+        R_rel, t_rel, cov, ok, switched = inputs
         predicted = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
         usable = measurement_usable(R_rel, t_rel, cov)
         cov = jnp.where(usable, cov, jnp.eye(6, dtype=cov.dtype))  # the update is computed, then discarded
         noise = (1 - shared_fraction) * cov
         updated = predicted.update(R_rel, t_rel, noise)
-        ok = status == SUCCESS
         filt, code = _guarded_update(filt, predicted, updated, ok, usable, predicted.innovation_ok(noise))
         # The chain switched keyframes: later measurements are against the new one, so the
         # clone follows it whether or not this frame's update was kept.
@@ -547,13 +644,12 @@ def filter_keyframes(
     first = chain.relative_cov[1]
     first_ok = measurement_usable(chain.relative_rotations[1], chain.relative_translations[1], first)
     filt = filt.clone(shared_fraction * jnp.where(first_ok, first, 0.0))
-    inputs = (chain.relative_rotations, chain.relative_translations, chain.relative_cov, chain.status, chain.switched)
+    ok = is_registered(chain.status, chain.continuity)
+    inputs = (chain.relative_rotations, chain.relative_translations, chain.relative_cov, ok, chain.switched)
     _, outs = jax.lax.scan(step, filt, jax.tree.map(lambda x: x[1:], inputs))
     head = (*_row(filt.now), jnp.asarray(FILTER_UPDATED, jnp.int32))
     filtered = (jnp.concatenate([h[None], o]) for h, o in zip(head, outs, strict=True))
-    return Track(
-        chain.rotations, chain.points, chain.status, *filtered, keyframe_indices(chain.switched), chain.relative_cov
-    )
+    return _track_of(chain, filtered)
 
 
 def _row(filt: TrackFilter):
@@ -567,6 +663,7 @@ def track(
     config: Config | None = None,
     key: PRNGKeyArray | None = None,
     keyframe_every: int = 25,
+    guided: bool = False,
     **filter_options,
 ) -> Track:
     """Track a sequence of clouds: `chain_estimates` then `filter_keyframes`.
@@ -580,6 +677,8 @@ def track(
       keyframe); under jit from the clouds' row counts.
     - `key`: PRNG key of the searches (required).
     - `keyframe_every`: frames between keyframe switches.
+    - `guided`: registrations guided by the motion predicted at a constant rate (see
+      [`chain_estimates`][]); off by default.
     - `filter_options`: go to `filter_keyframes`.
 
     **Returns:**
@@ -592,11 +691,11 @@ def track(
         raise ValueError("track needs a PRNG key: track(clouds, dt, key=jax.random.key(0)).")
     config = Config() if config is None else config
     if not is_concrete(clouds):
-        return _track(clouds, jnp.asarray(dt), config, key, keyframe_every, filter_options)
+        return _track(clouds, jnp.asarray(dt), config, key, keyframe_every, guided, filter_options)
     _check_sequence(clouds, dt)
     config = sized_sequence_config(clouds, config)
     dtype = clouds.points.dtype
-    return _track_program(clouds, jnp.asarray(dt, dtype), config, key, keyframe_every, filter_options)
+    return _track_program(clouds, jnp.asarray(dt, dtype), config, key, keyframe_every, guided, filter_options)
 
 
 def _check_sequence(clouds: Cloud, dt) -> None:
@@ -610,8 +709,8 @@ def _check_sequence(clouds: Cloud, dt) -> None:
         jax.tree.map(lambda x, k=k: x[k], clouds).check(f"frame {k}")
 
 
-def _track(clouds, dt, config, key, keyframe_every, filter_options) -> Track:
-    return filter_keyframes(chain_estimates(clouds, config, key, keyframe_every), dt, **filter_options)
+def _track(clouds, dt, config, key, keyframe_every, guided, filter_options) -> Track:
+    return filter_keyframes(chain_estimates(clouds, config, key, keyframe_every, guided), dt, **filter_options)
 
 
 _track_program = BoundedJit(_track)
