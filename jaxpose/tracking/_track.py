@@ -678,7 +678,7 @@ def track(
     - `key`: PRNG key of the searches (required).
     - `keyframe_every`: frames between keyframe switches.
     - `guided`: registrations guided by the motion predicted at a constant rate (see
-      [`chain_estimates`][]); off by default.
+      `chain_estimates`); off by default.
     - `filter_options`: go to `filter_keyframes`.
 
     **Returns:**
