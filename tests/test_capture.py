@@ -203,6 +203,7 @@ def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn):
     assert not bool(default.success)
 
 
+@pytest.mark.slow
 def test_a_guess_starts_the_default_second_surface_fit(large_turn):
     """`estimate_problem(..., guess=p)`: the default's second surface fit starts at p instead of
     at rest (a tracker passes its prediction). From the true motion of this turn, beyond the
