@@ -492,11 +492,16 @@ def chain_estimates(
         key_cloud, key_R, key_t, last_R, last_t, last_k, before_R, before_t, before_k = carry
         k, cloud = inputs
         problem = Problem.build(key_cloud, cloud, config)
-        R_pred, t_pred = predicted_motion((before_R, before_t, before_k), (last_R, last_t, last_k), (key_R, key_t), k)
-        guess = displacement_from_motion(problem.frame.origin, problem.frame.axes, R_pred, t_pred) if guided else None
+        guess = None
+        if guided:  # static: the default path computes no prediction
+            last = (last_R, last_t, last_k)
+            R_pred, t_pred = predicted_motion((before_R, before_t, before_k), last, (key_R, key_t), k)
+            guess = displacement_from_motion(problem.frame.origin, problem.frame.axes, R_pred, t_pred)
         est = estimate_problem(problem, config, jax.random.fold_in(key, k), guess)
-        j, resolved = continuity_choice(est.hypotheses, est.status, R_pred, config)
-        resolved = resolved & guided
+        if guided:
+            j, resolved = continuity_choice(est.hypotheses, est.status, R_pred, config)
+        else:
+            j, resolved = 0, jnp.asarray(False)
         H = est.hypotheses
         R_rel, t_rel = (
             jnp.where(resolved, H.rotation[j], est.rotation),
