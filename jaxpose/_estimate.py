@@ -179,21 +179,55 @@ def equally_good_and_apart(a: FineResult, b: FineResult, config: Config) -> Bool
     return tie & (apart > jnp.radians(config.thresholds.ambiguous_deg))
 
 
-def polish_exact(problem: Problem, config: Config, fine: FineResult) -> FineResult:
-    """`fine` run again from its own result against planes through the previous points
-    (`_fine.exact_surface`) when its residuals show no range noise (RMS below
-    `_fine.EXACT_RMS`): there the centroid anchor only adds its curvature bias, and the point
-    anchor is exact. On the realistic subset's noise-free pairs the median centroid error went
-    from 0.09 to 0.01 cm (docs, Findings: the fine stage's anchor on the realistic benchmark).
-    The polished result replaces `fine` only when it converged and explains the cloud at least
-    as well (`better_fine`)."""
+def polished(fine: FineResult, exact: FineResult) -> FineResult:
+    """`fine`, or its polish `exact` (the same fit run again from `fine.params` against planes
+    through the previous points, `_fine.exact_surface`) when `fine`'s residuals show no range
+    noise (RMS below `_fine.EXACT_RMS`): there the centroid anchor only adds its curvature
+    bias, and the point anchor is exact. On the realistic subset's noise-free pairs the median
+    centroid error went from 0.09 to 0.01 cm (docs, Findings: the fine stage's anchor on the
+    realistic benchmark). The polish replaces `fine` only when it converged and explains the
+    cloud at least as well (`better_fine`)."""
+    exact = jax.tree.map(lambda a, b: jnp.where(exact.converged | ~fine.converged, a, b), exact, fine)
+    return jax.tree.map(lambda a, b: jnp.where(fine.rms < _fine.EXACT_RMS, a, b), better_fine(fine, exact), fine)
 
-    def polish(fine):
-        exact = fine_refine(problem, config, fine.params, exact_surface(problem.fine))
-        exact = jax.tree.map(lambda a, b: jnp.where(exact.converged | ~fine.converged, a, b), exact, fine)
-        return better_fine(fine, exact)
 
-    return jax.lax.cond(fine.rms < _fine.EXACT_RMS, polish, lambda fine: fine, fine)
+def _take(tree, i: int):
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def best_run(runs: FineResult, count: int) -> FineResult:
+    """The best (`better_fine`) of the first `count` runs of a stacked `FineResult`."""
+    best = _take(runs, 0)
+    for i in range(1, count):
+        best = better_fine(best, _take(runs, i))
+    return best
+
+
+def fine_passes(problem: Problem, config: Config, starts: Float[Array, "k 6"]) -> FineResult:
+    """The fine stage's runs, stacked `(k + 1,)` (or `(k,)` with `FineStage.anchor` "point"): run
+    i < k from `starts[i]` (frame n), then, where `best_run` of them shows no range noise, its
+    polish against planes through the previous points (see [`polished`][]; an inactive run
+    otherwise, `fine_refine(..., active=False)`).
+
+    One `lax.scan` over the passes, so that the program holds one fine stage, not one per
+    start: each copy cost about 1.3 s of tracing and compiling on the 2-core CPU. The passes
+    run one after another, as separate calls would."""
+    count = starts.shape[0]
+    passes = count + (config.fine.anchor != "point")
+    fine = problem.fine
+
+    def one_pass(runs, i):
+        polish = i == count
+        best = best_run(runs, count)
+        start = jnp.where(polish, best.params, starts[jnp.minimum(i, count - 1)])
+        surface = eqx.tree_at(lambda f: f.offsets, fine, jnp.where(polish, exact_surface(fine).offsets, fine.offsets))
+        run = fine_refine(problem, config, start, surface, active=~polish | (best.rms < _fine.EXACT_RMS))
+        return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
+
+    shapes = jax.eval_shape(lambda: fine_refine(problem, config, starts[0]))
+    empty = jax.tree.map(lambda s: jnp.zeros((passes, *s.shape), s.dtype), shapes)
+    runs, _ = jax.lax.scan(one_pass, empty, jnp.arange(passes))
+    return runs
 
 
 def within_reach(p: Float[Array, "6"], config: Config) -> Bool[Array, ""]:
@@ -228,16 +262,18 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
     ambiguous, alternative = jnp.asarray(False), p
     candidates = p[None], jnp.ones(1, p.dtype), jnp.ones(1, bool)
     if config.fine is not None:
-        fine = fine_refine(problem, config, loc.params)
-        other = fine
+        starts = [loc.params]
         if config.fine.from_rest:
-            start = jnp.zeros_like(loc.params) if guess is None else guess.astype(loc.params.dtype)
-            rest = fine_refine(problem, config, start)
+            starts.append(jnp.zeros_like(loc.params) if guess is None else guess.astype(loc.params.dtype))
+        runs = fine_passes(problem, config, jnp.stack(starts))
+        fine = other = _take(runs, 0)
+        if config.fine.from_rest:
+            rest = _take(runs, 1)
             ambiguous = equally_good_and_apart(fine, rest, config)
             fine, other = better_fine(fine, rest), better_fine(rest, fine)
             alternative = other.params
         if config.fine.anchor != "point":
-            fine = polish_exact(problem, config, fine)
+            fine = polished(fine, _take(runs, len(starts)))
         # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
         # free it can slide along it (tens of centimetres along a face on random views). Its
         # result is kept unless the method's reference score drops by more than the guard;
@@ -264,9 +300,10 @@ def _capture_stages(problem: Problem, config: Config):
     """The capture stage over the whole rotation group (`jaxpose._capture`), then the configured
     fine stage from its best hypothesis."""
     cap = capture_search(problem, config)
-    fine = fine_refine(problem, config, cap.params[0])
+    runs = fine_passes(problem, config, cap.params[:1])
+    fine = _take(runs, 0)
     if config.fine.anchor != "point":
-        fine = polish_exact(problem, config, fine)
+        fine = polished(fine, _take(runs, 1))
     p = fine.params
     rest = cap.params[1:]
     runner_up = jnp.argmax(jnp.where(cap.distinct[1:], cap.score[1:], -jnp.inf))

@@ -365,7 +365,9 @@ def least_squares_solver(tol: float) -> optx.GaussNewton:
     return optx.GaussNewton(rtol=tol, atol=tol, linear_solver=lx.Normal(lx.Cholesky()))
 
 
-def fine_refine(problem, config: Config, start: Float[Array, "6"], fine: FineCloud | None = None) -> FineResult:
+def fine_refine(
+    problem, config: Config, start: Float[Array, "6"], fine: FineCloud | None = None, active=True
+) -> FineResult:
     """Minimise the point-to-plane residuals of the selected current points from `start` (frame n).
     See the module docstring. Pure and jittable.
 
@@ -376,7 +378,9 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"], fine: FineClo
     made the stage about 6× cheaper (370 → 65 ms on N5 variant 2). Stops when a round moves
     p by less than `ROUND_TOL` or than `NOISE_STEP` standard deviations, or after
     `FineStage.rounds` rounds; `converged` says which. `fine` replaces the problem's previous
-    side (e.g. [`exact_surface`][]).
+    side (e.g. [`exact_surface`][]). With `active` false (a boolean, possibly traced) no round
+    runs: the result is `start`, not converged, with no inliers, so that a caller can compile
+    one run and skip it where it is not needed (`jaxpose._estimate.fine_passes`).
     """
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)
@@ -410,9 +414,10 @@ def fine_refine(problem, config: Config, start: Float[Array, "6"], fine: FineClo
 
     def more(state):
         _, settled, rounds, _, _ = state
-        return ~settled & (rounds < config.fine.rounds)
+        return active & ~settled & (rounds < config.fine.rounds)
 
-    # Placeholder matches, of the right structure: the loop runs at least once and replaces them.
+    # Placeholder matches, of the right structure: an active run replaces them in its first round;
+    # an inactive one keeps them, with weight 0 everywhere.
     shapes = jax.eval_shape(lambda: _correspond(start, b, live, fine, inlier))
     unmatched = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     state = (start / scale, jnp.asarray(False), jnp.asarray(0), jnp.asarray(0), unmatched)

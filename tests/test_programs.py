@@ -1,9 +1,16 @@
 """The public path's bounded cache of compiled programs (jaxpose._programs)."""
 
+import subprocess
+import sys
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxpose as jp
+from jaxpose import _programs as programs
+from jaxpose._estimate import _build_and_estimate
 from jaxpose._programs import BoundedJit, clear_programs, memory_mappings
 
 
@@ -33,3 +40,69 @@ def test_inside_jit_and_vmap_it_is_part_of_the_callers_program():
 
 def test_memory_mappings_are_counted_on_linux():
     assert memory_mappings() >= 0
+
+
+class _Scaled(eqx.Module):
+    """A result with a static field: its tree definition must survive the disk cache."""
+
+    total: jax.Array
+    label: str = eqx.field(static=True, default="sum")
+
+
+def _scaled_module(x, scale: float) -> _Scaled:
+    return _Scaled(jnp.sum(x) * scale)
+
+
+def test_a_new_process_loads_the_program_from_disk(tmp_path, monkeypatch):
+    monkeypatch.setattr(programs, "program_cache_dir", lambda: tmp_path)
+    x = jnp.arange(5, dtype=jnp.float32)
+    first = BoundedJit(_scaled_module)
+    assert float(first(x, 2.0).total) == 20.0
+    assert first.last_source == "compiled"
+    assert len(list(tmp_path.glob("*.program"))) == 1
+    second = BoundedJit(_scaled_module)  # a new process has only the disk cache
+    loaded = second(x, 2.0)
+    assert second.last_source == "disk"
+    assert isinstance(loaded, _Scaled) and loaded.label == "sum" and float(loaded.total) == 20.0
+    assert float(second(x, 3.0).total) == 30.0 and second.last_source == "compiled"  # another signature
+
+
+def test_a_damaged_program_file_is_compiled_again(tmp_path, monkeypatch):
+    monkeypatch.setattr(programs, "program_cache_dir", lambda: tmp_path)
+    x = jnp.ones(4, dtype=jnp.float32)
+    BoundedJit(_scaled_module)(x, 1.0)
+    (path,) = tmp_path.glob("*.program")
+    path.write_bytes(path.read_bytes()[:100])
+    again = BoundedJit(_scaled_module)
+    assert float(again(x, 1.0).total) == 4.0 and again.last_source == "compiled"
+    assert programs.load_program(path) is not None  # rewritten whole
+
+
+def test_the_disk_cache_follows_jaxs_compilation_cache_setting(tmp_path):
+    before = jax.config.jax_compilation_cache_dir
+    try:
+        jax.config.update("jax_compilation_cache_dir", str(tmp_path))
+        assert programs.program_cache_dir() == tmp_path / programs.PROGRAM_FOLDER
+        jax.config.update("jax_compilation_cache_dir", None)
+        assert programs.program_cache_dir() is None
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
+
+
+KEY_SCRIPT = """
+import equinox as eqx, jax, jaxpose as jp
+jax.config.update("jax_enable_x64", True)  # as the tests (conftest)
+from jaxpose import _programs
+from jaxpose._estimate import _build_and_estimate
+dynamic, static = eqx.partition((jp.Config(), jax.random.key(0)), eqx.is_array)
+print(_programs.program_key(_build_and_estimate, _programs._signature(static, dynamic)))
+"""
+
+
+def test_a_programs_key_is_the_same_in_another_process():
+    """The default config holds functions (optimistix's norms) whose text carries a memory
+    address; the key must not, or no other process would find the program."""
+    dynamic, static = eqx.partition((jp.Config(), jax.random.key(0)), eqx.is_array)
+    here = programs.program_key(_build_and_estimate, programs._signature(static, dynamic))
+    there = subprocess.run([sys.executable, "-c", KEY_SCRIPT], capture_output=True, text=True, check=True)
+    assert there.stdout.strip() == here
