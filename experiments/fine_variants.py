@@ -1,6 +1,10 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
-`uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]`
+`uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2] [--set anchors|cost]`
+
+`--set anchors` (the default): the planes' anchor, the noise-free polish and the within-the-noise
+stop. `--set cost`: what the stage's cost settings (`FineStage.points`, `steps`, `rounds`,
+`neighbours`) buy in accuracy (docs, Findings: what the fine stage's cost buys).
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
 one compiled program per variant (capacities sized once for all pairs, so times are those of
@@ -82,6 +86,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--levels", default="0,0.5,1,2")
+    parser.add_argument("--set", default="anchors", choices=("anchors", "cost"))
     args = parser.parse_args()
     levels = tuple(float(x) for x in args.levels.split(","))
     cases = realistic.make_cases(pairs=args.pairs, levels=levels)
@@ -94,6 +99,11 @@ def main():
         ("no noise-free polish", default, {"EXACT_RMS": 0.0}),
         ("no within-the-noise stop", default, {"NOISE_STEP": 0.0}),
     ]
+    if args.set == "cost":
+        variants = [("default", default, {})] + [
+            (f"FineStage({name}={value})", dataclasses.replace(default, fine=dataclasses.replace(default.fine, **{name: value})), {})
+            for name, value in (("points", 2048), ("points", 8192), ("steps", 8), ("rounds", 10), ("neighbours", 12))
+        ]
     for name, config, constants in variants:
         saved = {k: getattr(_fine, k) for k in constants}
         for k, v in constants.items():

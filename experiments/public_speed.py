@@ -5,9 +5,10 @@
   reported apart), median of `repeats` calls; small_gicp's GICP (1 thread, as in the
   realistic benchmark) median of `repeats` calls on the same clouds. N5, the satellite and
   the upper stage at σ = 0 and 1 cm.
-- **Cold start:** a fresh process with an empty persistent compilation cache: import to first
-  result on one pair, and the compile time of the estimate program alone; then a second
-  fresh process with that cache warm.
+- **Cold start:** a fresh process with an empty persistent compilation cache: the import, the
+  first result on one pair (from the call), and the time to make the estimate program alone
+  (`compile_s`: tracing, lowering and compiling it, or loading it from the disk cache,
+  `program_source`); then a second fresh process with that cache warm.
 - **CLI end to end:** `jaxpose estimate a.ply b.ply` as a subprocess, cold and warm cache.
 - **Batched:** `jax.vmap` of `estimate` over `batch` pairs of one bucket (the jit path, a
   config sized for the camera), pairs per second.
@@ -47,12 +48,14 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 import jaxpose as jp
 from jaxpose.evaluation import realistic
 from jaxpose._estimate import _estimate_pair
+t_import = time.perf_counter()
 case = realistic.make_cases(1, names=("n5",), levels=(1.0,))[0]
 t1 = time.perf_counter()
 est = jp.estimate(case.prev, case.curr, key=jax.random.key(0))
 est.params.block_until_ready()
 t2 = time.perf_counter()
-print(json.dumps({"import_s": t1 - t0, "first_result_s": t2 - t1, "compile_s": _estimate_pair.last_compile_s,
+print(json.dumps({"import_s": t_import - t0, "simulate_s": t1 - t_import, "first_result_s": t2 - t1,
+                  "compile_s": _estimate_pair.last_compile_s, "program_source": _estimate_pair.last_source,
                   "status": int(est.status)}))
 """
 

@@ -59,6 +59,7 @@ from ._poses import (
     true_displacement as true_displacement,
 )
 from ._problem import Problem as Problem
+from ._programs import enable_compile_cache as enable_compile_cache
 from ._rotations import angles as angles
 from ._rotations import rotation as rotation
 from ._rotations import rotation_angle as rotation_angle
@@ -93,6 +94,7 @@ __all__ = [
     "Tumble",
     "angles",
     "displacement_from_motion",
+    "enable_compile_cache",
     "estimate",
     "hard_score",
     "identify",

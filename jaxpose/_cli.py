@@ -293,14 +293,10 @@ def _preset(name: str, **capacities: int):
 
 
 def _enable_compile_cache() -> None:
-    """Persist XLA compilations across CLI runs (the estimate compiles in seconds, runs in ms)."""
-    import os
+    """Persist compiled programs across CLI runs (the estimate compiles in seconds, runs in ms)."""
+    from ._programs import enable_compile_cache
 
-    import jax
-
-    cache = Path(os.environ.get("JAXPOSE_CACHE", Path.home() / ".cache" / "jaxpose" / "xla"))
-    jax.config.update("jax_compilation_cache_dir", str(cache))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    enable_compile_cache()
 
 
 @app.command()

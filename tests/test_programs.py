@@ -59,6 +59,7 @@ def test_a_new_process_loads_the_program_from_disk(tmp_path, monkeypatch):
     first = BoundedJit(_scaled_module)
     assert float(first(x, 2.0).total) == 20.0
     assert first.last_source == "compiled"
+    first.saving.join()
     assert len(list(tmp_path.glob("*.program"))) == 1
     second = BoundedJit(_scaled_module)  # a new process has only the disk cache
     loaded = second(x, 2.0)
@@ -70,11 +71,14 @@ def test_a_new_process_loads_the_program_from_disk(tmp_path, monkeypatch):
 def test_a_damaged_program_file_is_compiled_again(tmp_path, monkeypatch):
     monkeypatch.setattr(programs, "program_cache_dir", lambda: tmp_path)
     x = jnp.ones(4, dtype=jnp.float32)
-    BoundedJit(_scaled_module)(x, 1.0)
+    first = BoundedJit(_scaled_module)
+    first(x, 1.0)
+    first.saving.join()
     (path,) = tmp_path.glob("*.program")
     path.write_bytes(path.read_bytes()[:100])
     again = BoundedJit(_scaled_module)
     assert float(again(x, 1.0).total) == 4.0 and again.last_source == "compiled"
+    again.saving.join()
     assert programs.load_program(path) is not None  # rewritten whole
 
 

@@ -1,0 +1,62 @@
+"""Where the public call's compile time goes: each stage traced, lowered and compiled apart.
+
+On one realistic-benchmark pair (N5, σ = 1 cm, `make_cases(1)`), with the default config sized
+from it, the wall time of `jax.jit(...).lower(...)` (tracing and lowering) and of `.compile()`
+for: the build (`Problem.build`'s body), the global search, the refine, one fine-stage run,
+`estimate_problem` (search, refine, fine stage, status) and the whole public program
+(`_build_and_estimate`). A cold process: nothing is cached in memory or on disk; run it with
+`XLA_FLAGS=...` to compare XLA's options.
+
+    uv run python experiments/compile_times.py → results/compile_times.json
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import equinox as eqx
+import jax
+from _common import write_json
+
+import jaxpose as jp
+from jaxpose._estimate import _build_and_estimate, estimate_problem
+from jaxpose._fine import fine_refine
+from jaxpose._problem import _build, sized_config
+from jaxpose._search import local_refine, restarted_search
+from jaxpose.evaluation import realistic
+
+
+def compile_times(fn, *args) -> tuple[dict, object]:
+    """Lower and compile `fn` for `args` (arrays dynamic, the rest static); the seconds of
+    each and the compiled program's output."""
+    dynamic, static = eqx.partition(args, eqx.is_array)
+    t0 = time.perf_counter()
+    lowered = jax.jit(lambda d: fn(*eqx.combine(d, static))).lower(dynamic)
+    t1 = time.perf_counter()
+    program = lowered.compile()
+    t2 = time.perf_counter()
+    return {"lower_s": t1 - t0, "compile_s": t2 - t1}, program(dynamic)
+
+
+def main() -> None:
+    case = realistic.make_cases(1, names=("n5",), levels=(1.0,))[0]
+    config = sized_config(case.prev, case.curr, jp.Config())
+    key = jax.random.key(0)
+    rows = {}
+    rows["build"], problem = compile_times(_build, case.prev, case.curr, config)
+    rows["search"], glob = compile_times(restarted_search, problem, config, key)
+    rows["refine"], loc = compile_times(local_refine, problem, config, glob.params)
+    rows["one fine run"], _ = compile_times(fine_refine, problem, config, loc.params)
+    rows["estimate_problem"], _ = compile_times(estimate_problem, problem, config, key)
+    rows["public program"], _ = compile_times(_build_and_estimate, case.prev, case.curr, config, key)
+    for name, row in rows.items():
+        print(f"{name}: lower {row['lower_s']:.2f} s, compile {row['compile_s']:.2f} s", flush=True)
+    write_json(
+        "compile_times.json",
+        {"pair": case.label, "xla_flags": os.environ.get("XLA_FLAGS", ""), "capacities": str(config.capacities), "stages": rows},
+    )
+
+
+if __name__ == "__main__":
+    main()
