@@ -5,14 +5,17 @@ from it, the wall time of `jax.jit(...).lower(...)` (tracing and lowering) and o
 for: the build (`Problem.build`'s body), the global search, the refine, one fine-stage run,
 `estimate_problem` (search, refine, fine stage, status) and the whole public program
 (`_build_and_estimate`). A cold process: nothing is cached in memory or on disk; run it with
-`XLA_FLAGS=...` to compare XLA's options.
+`XLA_FLAGS=...` and a label to compare XLA's options. Also the median of 5 warm runs of the
+public program.
 
-    uv run python experiments/compile_times.py → results/compile_times.json
+    uv run python experiments/compile_times.py [label] → results/compile_times[_label].json
 """
 
 from __future__ import annotations
 
 import os
+import statistics
+import sys
 import time
 
 import equinox as eqx
@@ -30,13 +33,19 @@ from jaxpose.evaluation import realistic
 def compile_times(fn, *args) -> tuple[dict, object]:
     """Lower and compile `fn` for `args` (arrays dynamic, the rest static); the seconds of
     each and the compiled program's output."""
+    row, run = compiled(fn, *args)
+    return row, run()
+
+
+def compiled(fn, *args):
+    """The seconds of lowering and compiling `fn` for `args`, and a call of the program."""
     dynamic, static = eqx.partition(args, eqx.is_array)
     t0 = time.perf_counter()
     lowered = jax.jit(lambda d: fn(*eqx.combine(d, static))).lower(dynamic)
     t1 = time.perf_counter()
     program = lowered.compile()
     t2 = time.perf_counter()
-    return {"lower_s": t1 - t0, "compile_s": t2 - t1}, program(dynamic)
+    return {"lower_s": t1 - t0, "compile_s": t2 - t1}, lambda: program(dynamic)
 
 
 def main() -> None:
@@ -49,13 +58,32 @@ def main() -> None:
     rows["refine"], loc = compile_times(local_refine, problem, config, glob.params)
     rows["one fine run"], _ = compile_times(fine_refine, problem, config, loc.params)
     rows["estimate_problem"], _ = compile_times(estimate_problem, problem, config, key)
-    rows["public program"], _ = compile_times(_build_and_estimate, case.prev, case.curr, config, key)
+    rows["public program"], public = compiled(_build_and_estimate, case.prev, case.curr, config, key)
     for name, row in rows.items():
         print(f"{name}: lower {row['lower_s']:.2f} s, compile {row['compile_s']:.2f} s", flush=True)
+    run_ms = 1e3 * warm_median(public)
+    print(f"public program, warm run: {run_ms:.0f} ms")
+    label = f"_{sys.argv[1]}" if len(sys.argv) > 1 else ""
     write_json(
-        "compile_times.json",
-        {"pair": case.label, "xla_flags": os.environ.get("XLA_FLAGS", ""), "capacities": str(config.capacities), "stages": rows},
+        f"compile_times{label}.json",
+        {
+            "pair": case.label,
+            "xla_flags": os.environ.get("XLA_FLAGS", ""),
+            "capacities": str(config.capacities),
+            "stages": rows,
+            "public_program_run_ms": run_ms,
+        },
     )
+
+
+def warm_median(run, repeats: int = 5) -> float:
+    """Median seconds of `repeats` calls after a first one."""
+    times = []
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        jax.block_until_ready(run())
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times[1:])
 
 
 if __name__ == "__main__":

@@ -82,6 +82,11 @@ def report(name, cases, rows, gicp, compile_s, levels):
     print("  not found:", "; ".join(missed) or "none")
 
 
+def fine_with(config, name: str, value):
+    """`config.fine` with one setting changed."""
+    return dataclasses.replace(config.fine, **{name: value})
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3)
@@ -100,9 +105,10 @@ def main():
         ("no within-the-noise stop", default, {"NOISE_STEP": 0.0}),
     ]
     if args.set == "cost":
+        settings = (("points", 2048), ("points", 8192), ("steps", 8), ("rounds", 10), ("neighbours", 12))
         variants = [("default", default, {})] + [
-            (f"FineStage({name}={value})", dataclasses.replace(default, fine=dataclasses.replace(default.fine, **{name: value})), {})
-            for name, value in (("points", 2048), ("points", 8192), ("steps", 8), ("rounds", 10), ("neighbours", 12))
+            (f"FineStage({name}={value})", dataclasses.replace(default, fine=fine_with(default, name, value)), {})
+            for name, value in settings
         ]
     for name, config, constants in variants:
         saved = {k: getattr(_fine, k) for k in constants}

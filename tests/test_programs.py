@@ -93,6 +93,17 @@ def test_the_disk_cache_follows_jaxs_compilation_cache_setting(tmp_path):
         jax.config.update("jax_compilation_cache_dir", before)
 
 
+def test_enable_compile_cache_sets_the_folder_and_the_threshold(tmp_path):
+    before = jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs
+    try:
+        assert jp.enable_compile_cache(tmp_path / "xla") == tmp_path / "xla"
+        assert programs.program_cache_dir() == tmp_path / "xla" / programs.PROGRAM_FOLDER
+        assert jax.config.jax_persistent_cache_min_compile_time_secs == 1.0
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+
+
 KEY_SCRIPT = """
 import equinox as eqx, jax, jaxpose as jp
 jax.config.update("jax_enable_x64", True)  # as the tests (conftest)
