@@ -139,18 +139,56 @@ def _source_digest() -> str:
 
 _ADDRESS = re.compile(r" at 0x[0-9a-fA-F]+")
 
+TRUSTED_MODULES = (*_LIBRARIES, "jaxpose", "numpy", "builtins")
+"""Packages whose functions a key may name without their code: the versions (or, for jaxpose,
+the sources) in `_environment()` fix what they do."""
+
+
+def _static_values(node) -> list:
+    """The non-array values of a signature (`_signature`): its static leaves and the static
+    fields held in its tree definitions' node data."""
+    if isinstance(node, jax.tree_util.PyTreeDef):
+        data = node.node_data()
+        values = [] if data is None else _static_values(data[1])
+        return values + [v for child in node.children() for v in _static_values(child)]
+    if isinstance(node, tuple | list):
+        return [v for item in node for v in _static_values(item)]
+    if isinstance(node, dict):
+        return [v for item in node.values() for v in _static_values(item)]
+    return [node]
+
+
+def cacheable(signature: tuple) -> bool:
+    """Whether a program can be found again by its signature's text: every function in it
+    comes from a `TRUSTED_MODULES` package (its text is its name, not its code), and no other
+    value prints as an anonymous `<… at 0x…>` object. A config holding a user's own function
+    is compiled in every process instead: its name would not say which code it ran."""
+    for value in _static_values(signature):
+        if isinstance(value, type):
+            continue
+        if callable(value) and not isinstance(value, eqx.Module):
+            module = getattr(value, "__module__", None) or ""
+            if module.split(".")[0] not in TRUSTED_MODULES:
+                return False
+        elif _ADDRESS.search(repr(value)):
+            return False
+    return True
+
 
 def program_key(fn: Callable, signature: tuple) -> str:
     """The disk cache's file name of `fn`'s program for `signature` (`_signature`): a sha256
-    of the function's name, the signature's text without memory addresses (a function in a
-    config prints as `<function max_norm at 0x…>`) and `_environment()`."""
+    of the function's name, the signature's text without memory addresses (a library function
+    in a config prints as `<function max_norm at 0x…>`; see `cacheable`) and `_environment()`."""
     text = _ADDRESS.sub("", f"{fn.__module__}.{fn.__qualname__}|{signature!r}|{_environment()}")
     return hashlib.sha256(text.encode()).hexdigest()
 
 
 def _equinox_missing():
-    from equinox._module._flatten import MISSING
-
+    """equinox's marker of an absent field (None if this equinox has none)."""
+    try:
+        from equinox._module._flatten import MISSING
+    except ImportError:
+        return None
     return MISSING
 
 
@@ -160,7 +198,8 @@ class _TreePickler(pickle.Pickler):
     identity, so the singleton is pickled as a reference to itself."""
 
     dispatch_table = copyreg.dispatch_table.copy()
-    dispatch_table[type(_equinox_missing())] = lambda _: (_equinox_missing, ())
+    if _equinox_missing() is not None:
+        dispatch_table[type(_equinox_missing())] = lambda _: (_equinox_missing, ())
 
 
 def save_program(path: Path, program) -> None:
@@ -238,7 +277,7 @@ class BoundedJit:
     def _make(self, key, static, dynamic):
         """The program for one signature: from the disk cache, or compiled (and saved there)."""
         folder = program_cache_dir()
-        path = None if folder is None else folder / f"{program_key(self.fn, key)}.program"
+        path = None if folder is None or not cacheable(key) else folder / f"{program_key(self.fn, key)}.program"
         program = None if path is None else load_program(path)
         self.last_source = "disk" if program is not None else "compiled"
         if program is None:
@@ -256,6 +295,7 @@ __all__ = [
     "CROWDED",
     "PROGRAMS",
     "BoundedJit",
+    "cacheable",
     "clear_programs",
     "enable_compile_cache",
     "load_program",

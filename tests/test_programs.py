@@ -68,6 +68,26 @@ def test_a_new_process_loads_the_program_from_disk(tmp_path, monkeypatch):
     assert float(second(x, 3.0).total) == 30.0 and second.last_source == "compiled"  # another signature
 
 
+def _scaled_by(x, scale):
+    return jnp.sum(x) * scale(2.0)
+
+
+def _double(v):
+    return 2 * v
+
+
+def test_a_users_own_function_in_the_signature_is_never_cached(tmp_path, monkeypatch):
+    """A static function from outside the trusted packages would be keyed by its name alone,
+    so a changed body could load the old program: such programs are compiled every time."""
+    monkeypatch.setattr(programs, "program_cache_dir", lambda: tmp_path)
+    cached = BoundedJit(_scaled_by)
+    assert float(cached(jnp.ones(3), _double)) == 12.0
+    assert cached.last_source == "compiled" and cached.saving is None
+    assert not list(tmp_path.glob("*.program"))
+    dynamic, static = eqx.partition((jp.Config(), jax.random.key(0)), eqx.is_array)
+    assert programs.cacheable(programs._signature(static, dynamic))  # optimistix's norms are trusted
+
+
 def test_a_damaged_program_file_is_compiled_again(tmp_path, monkeypatch):
     monkeypatch.setattr(programs, "program_cache_dir", lambda: tmp_path)
     x = jnp.ones(4, dtype=jnp.float32)
