@@ -1,10 +1,13 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
-`uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2] [--set anchors|cost]`
+`uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
+[--set anchors|cost|gates] [--seed 0]`
 
 `--set anchors` (the default): the planes' anchor, the noise-free polish and the within-the-noise
 stop. `--set cost`: what the stage's cost settings (`FineStage.points`, `steps`, `rounds`,
-`neighbours`) buy in accuracy (docs, Findings: what the fine stage's cost buys).
+`neighbours`) buy in accuracy (docs, Findings: what the fine stage's cost buys). `--set gates`:
+the inlier gate, the robust scale and the planar fraction (docs, Findings: the fine stage's
+gates on two draws of pairs). `--seed` draws other pairs than the benchmark's (seed 0).
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
 one compiled program per variant (capacities sized once for all pairs, so times are those of
@@ -91,10 +94,11 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--levels", default="0,0.5,1,2")
-    parser.add_argument("--set", default="anchors", choices=("anchors", "cost"))
+    parser.add_argument("--set", default="anchors", choices=("anchors", "cost", "gates"))
+    parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     levels = tuple(float(x) for x in args.levels.split(","))
-    cases = realistic.make_cases(pairs=args.pairs, levels=levels)
+    cases = realistic.make_cases(pairs=args.pairs, levels=levels, seed=args.seed)
     gicp = gicp_rows(cases)
     default = jp.Config()
     point = dataclasses.replace(default, fine=dataclasses.replace(default.fine, anchor="point"))
@@ -109,6 +113,16 @@ def main():
         variants = [("default", default, {})] + [
             (f"FineStage({name}={value})", dataclasses.replace(default, fine=fine_with(default, name, value)), {})
             for name, value in settings
+        ]
+    if args.set == "gates":
+        settings = (("inlier", 0.05), ("inlier", 0.08), ("planar_fraction", 0.85))
+        variants = [
+            ("default", default, {}),
+            *(
+                (f"FineStage({name}={value})", dataclasses.replace(default, fine=fine_with(default, name, value)), {})
+                for name, value in settings
+            ),
+            ("ROBUST_SCALE = 10", default, {"ROBUST_SCALE": 10.0}),
         ]
     for name, config, constants in variants:
         saved = {k: getattr(_fine, k) for k in constants}

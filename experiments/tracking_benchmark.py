@@ -15,6 +15,8 @@ separately). Per family and overall: median, p90 and max.
     uv run python experiments/tracking_benchmark.py [tumbles] [duration_s] [rate_hz] [guided]
         → results/tracking_benchmark[_guided].{json,md}
     uv run python experiments/tracking_benchmark.py summarise   (the table again from the JSON's rows)
+    uv run python experiments/tracking_benchmark.py issue [runs]
+        → results/tracking_issue_case.{json,md}: issue 25's own N5 case (`issue_tumble`)
 """
 
 from __future__ import annotations
@@ -23,7 +25,9 @@ import json
 import sys
 import time
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import jaxlie
 import numpy as np
 from _common import RESULTS, write_json
@@ -47,9 +51,29 @@ def one_tumble(index: int, duration: float, rate_hz: float, guided: bool = False
     family = FAMILIES[index % len(FAMILIES)]
     sigma = NOISE_CM[(index // len(FAMILIES)) % len(NOISE_CM)]
     orbital = bool(index % 2)
-    target = getattr(jp.targets, family)()
     key = jax.random.key(1000 + index)
     tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=orbital)
+    return run_tumble(index, family, sigma, tumble, key, duration, rate_hz, guided)
+
+
+ISSUE_MOMENTS = (1.0, 1.4, 1.9)
+"""Principal moments of the issue's own case (N5, torque-free, issue 25), relative."""
+
+
+def issue_tumble() -> Tumble:
+    """Issue 25's case: N5 5.5 m from a camera holding an inertial attitude, torque-free with
+    principal moments 1 : 1.4 : 1.9, turning at 4.5 °/s about the non-principal body axis
+    (1, 2, 3)/√14 (`Tumble.n5`'s), in the paper's previous attitude."""
+    base = Tumble.n5(rate_deg_s=4.5, distance=5.5)
+    inertia = jnp.diag(jnp.asarray(ISSUE_MOMENTS)) * 100.0
+    return eqx.tree_at(lambda t: (t.inertia, t.orbit_rate), base, (inertia, 0.0))
+
+
+def run_tumble(index, family, sigma, tumble, key, duration, rate_hz, guided=False) -> dict:
+    """Simulate one tumble (range noise `sigma` cm at 5 m, growing with range), track it with
+    the default config and measure it (see the module docstring)."""
+    orbital = bool(tumble.orbit_rate)
+    target = getattr(jp.targets, family)()
     camera = jp.Camera.camcube2(noise_sigma=sigma / 100, noise_range_ref=5.0)
     seq = simulate_sequence(camera, target, tumble, duration, rate_hz, key=jax.random.fold_in(key, 1))
     clouds = jax.block_until_ready(seq.clouds)
@@ -142,6 +166,17 @@ def resummarise() -> None:
     write(saved["rows"], saved["tumbles"], saved["duration_s"], saved["rate_hz"])
 
 
+def issue_case(runs: int = 3, duration: float = 10.0, rate_hz: float = 25.0) -> None:
+    """Issue 25's own case (`issue_tumble`, σ = 1 cm) with `runs` independent noise draws →
+    `tracking_issue_case.{json,md}`."""
+    rows = []
+    for run in range(runs):
+        row = run_tumble(run, "n5", 1.0, issue_tumble(), jax.random.key(2000 + run), duration, rate_hz)
+        rows.append(row)
+        print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+    write(rows, runs, duration, rate_hz, "tracking_issue_case")
+
+
 def main(tumbles: int = 20, duration: float = 10.0, rate_hz: float = 25.0, mode: str = "default") -> None:
     """`mode` "guided": `jp.track(..., guided=True)`, written to `tracking_benchmark_guided.*`."""
     guided = mode == "guided"
@@ -156,5 +191,7 @@ def main(tumbles: int = 20, duration: float = 10.0, rate_hz: float = 25.0, mode:
 if __name__ == "__main__":
     if sys.argv[1:] == ["summarise"]:
         resummarise()
+    elif sys.argv[1:2] == ["issue"]:
+        issue_case(*(int(a) for a in sys.argv[2:3]))
     else:
         main(*(f(a) for f, a in zip((int, float, float, str), sys.argv[1:], strict=False)))
