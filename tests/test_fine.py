@@ -1,6 +1,7 @@
 """Fine stage (jaxpose.fine): thinning, normals, and recovery of a displacement from a
 start a few degrees off, against the truth of the simulated pair (float64)."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -280,3 +281,37 @@ def test_a_noise_free_view_of_curved_surfaces_is_exact():
     err = errors(case, est.rotation, est.translation)
     assert bool(est.success)
     assert err["rotation_error_deg"] < 0.01 and err["centroid_error_cm"] < 0.01, err
+
+
+def test_the_fine_passes_are_the_separate_runs(paper_clouds):
+    """`_estimate.fine_passes` (one `lax.scan`, one fine stage in the program) gives what
+    separate `fine_refine` calls give: run i from `starts[i]`, then, on this noise-free view
+    (RMS below `EXACT_RMS`), the better run polished against planes through the points. An
+    inactive run keeps its start and reports no work."""
+    from jaxpose._estimate import better_fine, fine_passes
+    from jaxpose._fine import EXACT_RMS, exact_surface
+
+    config = jp.Config(capacities=jp.Capacities(max_points=5120))
+    problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config)
+    truth = jp.true_displacement(
+        problem.frame, paper_rotation("previous"), T_PAPER, paper_rotation("variant2"), T_PAPER
+    )
+    starts = jnp.stack([truth + jnp.array([0.02, -0.01, 0.01, 0.01, 0.0, -0.01]), truth * 0.9])
+    runs = jax.jit(lambda s: fine_passes(problem, config, s))(starts)
+    assert runs.params.shape == (3, 6)
+
+    def run_on(start, offsets):  # one run against planes with the given offsets
+        return fine_refine(problem, config, start, eqx.tree_at(lambda f: f.offsets, problem.fine, offsets))
+
+    apart = jax.jit(run_on)
+    separate = [apart(starts[i], problem.fine.offsets) for i in range(2)]
+    for i, run in enumerate(separate):
+        np.testing.assert_allclose(np.asarray(runs.params[i]), np.asarray(run.params), atol=1e-9)
+        assert int(runs.steps[i]) == int(run.steps)
+    best = better_fine(*separate)
+    assert float(best.rms) < EXACT_RMS
+    polish = apart(best.params, exact_surface(problem.fine).offsets)
+    np.testing.assert_allclose(np.asarray(runs.params[2]), np.asarray(polish.params), atol=1e-9)
+    idle = jax.jit(lambda s: fine_refine(problem, config, s, active=False))(starts[0])
+    np.testing.assert_array_equal(np.asarray(idle.params), np.asarray(starts[0]))
+    assert int(idle.steps) == 0 and float(idle.inliers) == 0.0 and not bool(idle.converged)
