@@ -7,8 +7,8 @@
   the upper stage at σ = 0 and 1 cm.
 - **Cold start:** a fresh process with an empty persistent compilation cache: the import, the
   first result on one pair (from the call), and the time to make the estimate program alone
-  (`compile_s`: tracing, lowering and compiling it, or loading it from the disk cache,
-  `program_source`); then a second fresh process with that cache warm.
+  (`compile_s`: tracing, lowering and compiling it, or loading it from JAX's cache); then a
+  second fresh process with that cache warm.
 - **CLI end to end:** `jaxpose estimate a.ply b.ply` as a subprocess, cold and warm cache.
 - **Batched:** `jax.vmap` of `estimate` over `batch` pairs of one bucket (the jit path, a
   config sized for the camera), pairs per second.
@@ -55,7 +55,7 @@ est = jp.estimate(case.prev, case.curr, key=jax.random.key(0))
 est.params.block_until_ready()
 t2 = time.perf_counter()
 print(json.dumps({"import_s": t_import - t0, "simulate_s": t1 - t_import, "first_result_s": t2 - t1,
-                  "compile_s": _estimate_pair.last_compile_s, "program_source": _estimate_pair.last_source,
+                  "compile_s": _estimate_pair.last_compile_s,
                   "status": int(est.status)}))
 """
 
