@@ -293,7 +293,8 @@ def _preset(name: str, **capacities: int):
 
 
 def _enable_compile_cache() -> None:
-    """Persist compiled programs across CLI runs (the estimate compiles in seconds, runs in ms)."""
+    """Persist XLA's compilations across CLI runs (`jaxpose.enable_compile_cache`; imported here,
+    not at the top, so that the CLI's help does not import JAX)."""
     from ._programs import enable_compile_cache
 
     enable_compile_cache()
