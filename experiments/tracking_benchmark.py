@@ -12,15 +12,32 @@ registered frames (a success, or an ambiguous estimate resolved by motion contin
 fused frames, non-finite outputs, and the time per frame (compile excluded, measured
 separately). Per family and overall: median, p90 and max.
 
-    uv run python experiments/tracking_benchmark.py [tumbles] [duration_s] [rate_hz] [guided]
-        → results/tracking_benchmark[_guided].{json,md}
+    uv run python experiments/tracking_benchmark.py [tumbles] [duration_s] [rate_hz] [mode]
+        → results/tracking_benchmark[_<mode>].{json,md}; mode "guided": `guided=True`;
+          "every25": keyframes every 25 frames, not by motion (`keyframe_every=25,
+          keyframe_reach=None`)
     uv run python experiments/tracking_benchmark.py summarise   (the table again from the JSON's rows)
     uv run python experiments/tracking_benchmark.py issue [runs]
         → results/tracking_issue_case.{json,md}: issue 25's own N5 case (`issue_tumble`)
+    uv run python experiments/tracking_benchmark.py registrations
+        → results/tracking_registrations.{json,md}: the saved registrations' rotation errors
+          (keyframe → k against the truth), successes apart from those motion continuity
+          accepted (weak or ambiguous estimates), per family and noise level
+    uv run python experiments/tracking_benchmark.py refilter '{"accel_noise": 1e-3}' [name]
+        → results/tracking_refilter_<name>.{json,md}: the saved registrations of the last
+          default run (`results/tracking_benchmark_chains.npz`) through `filter_keyframes`
+          with other options; the registrations, so their statuses, counts and times, are
+          those of the saved run.
+    uv run python experiments/tracking_benchmark.py reach [tumbles] [duration_s] [rate_hz]
+        → results/tracking_reach.{json,md}: how far one keyframe reaches: every frame of
+          `tumbles` other random tumbles (seeds 3000 + i, not the benchmark's) registered
+          against frame 0, success rate and rotation error per bin of the true rotation from
+          frame 0
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import sys
 import time
@@ -33,8 +50,9 @@ import numpy as np
 from _common import RESULTS, write_json
 
 import jaxpose as jp
+from jaxpose._problem import sized_sequence_config
 from jaxpose.sim import Tumble, simulate_sequence
-from jaxpose.tracking._track import FILTER_UPDATED, _track_program
+from jaxpose.tracking._track import FILTER_UPDATED, Chain, _track_program, chain_estimates, filter_keyframes
 
 FAMILIES = ("n5", "chibis_m", "satellite", "upper_stage", "fragment")
 NOISE_CM = (0.0, 0.5, 1.0, 2.0)
@@ -47,13 +65,17 @@ def true_rates(R: np.ndarray, rate_hz: float) -> np.ndarray:
     return np.concatenate([rate[:1], rate])
 
 
-def one_tumble(index: int, duration: float, rate_hz: float, guided: bool = False) -> dict:
+MODES = {"default": {}, "guided": {"guided": True}, "every25": {"keyframe_every": 25, "keyframe_reach": None}}
+"""`jp.track` options of each benchmark mode."""
+
+
+def one_tumble(index: int, duration: float, rate_hz: float, options: dict | None = None) -> dict:
     family = FAMILIES[index % len(FAMILIES)]
     sigma = NOISE_CM[(index // len(FAMILIES)) % len(NOISE_CM)]
     orbital = bool(index % 2)
     key = jax.random.key(1000 + index)
     tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=orbital)
-    return run_tumble(index, family, sigma, tumble, key, duration, rate_hz, guided)
+    return run_tumble(index, family, sigma, tumble, key, duration, rate_hz, options)
 
 
 ISSUE_MOMENTS = (1.0, 1.4, 1.9)
@@ -69,7 +91,7 @@ def issue_tumble() -> Tumble:
     return eqx.tree_at(lambda t: (t.inertia, t.orbit_rate), base, (inertia, 0.0))
 
 
-def run_tumble(index, family, sigma, tumble, key, duration, rate_hz, guided=False) -> dict:
+def run_tumble(index, family, sigma, tumble, key, duration, rate_hz, options=None) -> dict:
     """Simulate one tumble (range noise `sigma` cm at 5 m, growing with range), track it with
     the default config and measure it (see the module docstring)."""
     orbital = bool(tumble.orbit_rate)
@@ -79,35 +101,215 @@ def run_tumble(index, family, sigma, tumble, key, duration, rate_hz, guided=Fals
     clouds = jax.block_until_ready(seq.clouds)
     _track_program.last_compile_s = 0.0
     t0 = time.perf_counter()
-    result = jax.block_until_ready(jp.track(clouds, 1 / rate_hz, key=jax.random.fold_in(key, 2), guided=guided))
+    track_key = jax.random.fold_in(key, 2)
+    result = jax.block_until_ready(jp.track(clouds, 1 / rate_hz, key=track_key, **(options or {})))
     seconds = time.perf_counter() - t0
     compile_s = _track_program.last_compile_s
     R = np.asarray(seq.rotations)
-    truth_rate = true_rates(R, rate_hz)
-    rate_err = np.degrees(np.linalg.norm(np.asarray(result.rate) - truth_rate, axis=1))
-    truth_A = np.einsum("kij,lj->kil", R, R[0])
-    attitude = np.degrees(float(jp.rotation_angle(result.attitude[-1], truth_A[-1])))
-    every = int(rate_hz)
-    frames = len(R)
-    nonfinite = sum(int(np.sum(~np.isfinite(np.asarray(getattr(result, f))))) for f in FILTERED)
-    return {
+    row = {
         "tumble": index,
         "family": family,
         "sigma_cm": sigma,
         "camera": "orbital" if orbital else "inertial",
         "rate_deg_s": float(np.degrees(np.linalg.norm(np.asarray(tumble.rate)))),
-        "frames": frames,
+        **filter_errors(result, R, rate_hz),
+        "compile_s": compile_s,
+        "ms_per_frame": 1000 * (seconds - compile_s) / (len(R) - 1),
+    }
+    SAVED.append({"truth": R, **{name: np.asarray(getattr(result, name)) for name in REGISTRATIONS}})
+    return row
+
+
+REGISTRATIONS = ("rotations", "points", "status", "keyframes", "measurement_cov", "continuity")
+"""The fields of a `Track` that hold its registrations (what `chain_of_track` needs)."""
+
+SAVED: list[dict] = []
+"""Each tumble's registrations and true rotations, in the order run (written as an npz)."""
+
+
+def filter_errors(result, R: np.ndarray, rate_hz: float) -> dict:
+    """Counts and errors of a `Track` against the true rotations R (T, 3, 3) of frame 0 → k:
+    registered and fused frames, non-finite outputs, the rate error at the end and its maximum
+    over the last second (°/s), and the attitude error at the end (°)."""
+    truth_rate = true_rates(R, rate_hz)
+    rate_err = np.degrees(np.linalg.norm(np.asarray(result.rate) - truth_rate, axis=1))
+    truth_A = np.einsum("kij,lj->kil", R, R[0])
+    every = int(rate_hz)
+    return {
+        "frames": len(R),
         # Both count frame 0 (a success and the filter's start); the summary leaves it out.
         "registered": int(np.sum(np.asarray(result.registered()))),
         "by_continuity": int(np.sum(np.asarray(result.continuity))),
         "fused": int(np.sum(np.asarray(result.filter_status) == FILTER_UPDATED)),
-        "non_finite": nonfinite,
+        "non_finite": sum(int(np.sum(~np.isfinite(np.asarray(getattr(result, f))))) for f in FILTERED),
         "rate_error_deg_s": float(rate_err[-1]),
         "rate_error_last_second_max_deg_s": float(rate_err[-every:].max()),
-        "attitude_error_deg": attitude,
-        "compile_s": compile_s,
-        "ms_per_frame": 1000 * (seconds - compile_s) / (frames - 1),
+        "attitude_error_deg": np.degrees(float(jp.rotation_angle(result.attitude[-1], truth_A[-1]))),
     }
+
+
+def chain_of_track(saved: dict) -> Chain:
+    """The `Chain` of registrations a `Track` was filtered from (its `REGISTRATIONS` fields):
+    the measurement keyframe j → k of a registered frame is R_0k R_0jᵀ and t_0k − R_rel t_0j,
+    with t_0k = points_k − R_0k O_n; other frames' measurements are unused by the filter."""
+    R, points, keyframes = saved["rotations"], saved["points"], saved["keyframes"]
+    origin = points[0]
+    t = points - np.einsum("kij,j->ki", R, origin)
+    R_rel = np.einsum("kij,klj->kil", R, R[keyframes])
+    t_rel = t - np.einsum("kij,kj->ki", R_rel, t[keyframes])
+    switched = np.zeros(len(R), bool)
+    switched[np.unique(keyframes)] = True
+    switched[0] = True
+    arrays = (R, t, points, saved["status"], origin, R_rel, t_rel, saved["measurement_cov"], switched)
+    return Chain(*(jnp.asarray(a) for a in arrays), jnp.asarray(saved["continuity"]))
+
+
+def registration_errors() -> None:
+    """Rotation errors (°) of the saved registrations keyframe → k against the truth, the
+    successes apart from the frames motion continuity accepted → `tracking_registrations.*`."""
+    saved = np.load(RESULTS / "tracking_benchmark_chains.npz")
+    rows = json.loads((RESULTS / "tracking_benchmark.json").read_text())["rows"]
+    out = []
+    for i, row in enumerate(rows):
+        tumble = {field: saved[field][i] for field in ("truth", *REGISTRATIONS)}
+        chain, R = chain_of_track(tumble), tumble["truth"]
+        true_rel = np.einsum("kij,klj->kil", R, R[tumble["keyframes"]])
+        error = np.degrees(np.asarray(jp.rotation_angle(chain.relative_rotations, jnp.asarray(true_rel))))
+        success = np.asarray(chain.status) == 0
+        success[0] = False
+        continuity = np.asarray(chain.continuity)
+        out.append(
+            {
+                **{key: row[key] for key in ("tumble", "family", "sigma_cm")},
+                **{
+                    f"{name}_frames": int(mask.sum())
+                    for name, mask in (("success", success), ("continuity", continuity))
+                },
+                **{
+                    f"{name}_error_median_deg": float(np.median(error[mask])) if mask.any() else None
+                    for name, mask in (("success", success), ("continuity", continuity))
+                },
+                **{
+                    f"{name}_error_max_deg": float(error[mask].max()) if mask.any() else None
+                    for name, mask in (("success", success), ("continuity", continuity))
+                },
+            }
+        )
+    head = (
+        "| tumble | family | σ, cm | successes | median / max error, ° | accepted by continuity "
+        "| median / max error, ° |\n|---|---|---|---|---|---|---|\n"
+    )
+    fmt = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
+    table = head + "\n".join(
+        f"| {r['tumble']} | {r['family']} | {r['sigma_cm']:g} | {r['success_frames']} | "
+        f"{fmt(r['success_error_median_deg'])} / {fmt(r['success_error_max_deg'])} | {r['continuity_frames']} | "
+        f"{fmt(r['continuity_error_median_deg'])} / {fmt(r['continuity_error_max_deg'])} |"
+        for r in out
+    )
+    print(table)
+    write_json("tracking_registrations.json", {"rows": out})
+    (RESULTS / "tracking_registrations.md").write_text(table + "\n")
+
+
+def refilter(options: dict, name: str) -> None:
+    """The saved registrations of the last default run through `filter_keyframes(**options)`
+    → `tracking_refilter_<name>.{json,md}`."""
+    saved = np.load(RESULTS / "tracking_benchmark_chains.npz")
+    benchmark = json.loads((RESULTS / "tracking_benchmark.json").read_text())
+    previous, duration, rate_hz = benchmark["rows"], benchmark["duration_s"], benchmark["rate_hz"]
+    run = jax.jit(lambda chain: filter_keyframes(chain, 1 / rate_hz, **options))
+    rows = []
+    for i, old in enumerate(previous):
+        tumble = {field: saved[field][i] for field in ("truth", *REGISTRATIONS)}
+        result = run(chain_of_track(tumble))
+        rows.append({**old, **filter_errors(result, tumble["truth"], rate_hz), "filter_options": options})
+    write(rows, len(rows), duration, rate_hz, f"tracking_refilter_{name}")
+
+
+REACH_BINS_DEG = (0, 2, 4, 6, 8, 10, 12, 15, 20, 30, 180)
+"""Bins (°) of the true rotation keyframe → frame for `reach`."""
+
+
+def reach(tumbles: int = 10, duration: float = 10.0, rate_hz: float = 25.0) -> None:
+    """Register every frame of `tumbles` random tumbles (the benchmark's families and noise
+    levels in turn, seeds 3000 + i) against frame 0 alone (`chain_estimates` with no keyframe
+    switch) and tabulate, per bin of the true rotation from frame 0 (`REACH_BINS_DEG`):
+    frames, the share whose estimate is a success, the share accepted by continuity, the
+    median and 90th-percentile rotation error of the successes (°), the successes more than
+    1° off, and the true motion of frame 0's plane origin (cm) → `tracking_reach.{json,md}`."""
+    frames = []
+    for index in range(tumbles):
+        family = FAMILIES[index % len(FAMILIES)]
+        sigma = NOISE_CM[(index // len(FAMILIES)) % len(NOISE_CM)]
+        key = jax.random.key(3000 + index)
+        tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=bool(index % 2))
+        camera = jp.Camera.camcube2(noise_sigma=sigma / 100, noise_range_ref=5.0)
+        target = getattr(jp.targets, family)()
+        seq = simulate_sequence(camera, target, tumble, duration, rate_hz, key=jax.random.fold_in(key, 1))
+        config = sized_sequence_config(seq.clouds, jp.Config())
+        steps = int(seq.rotations.shape[0])
+        chain = _reach_program(seq.clouds, config, jax.random.fold_in(key, 2), steps)
+        R = np.asarray(seq.rotations)
+        true_rel = np.einsum("kij,lj->kil", R, R[0])
+        angle = np.degrees(np.asarray(jp.rotation_angle(jnp.asarray(true_rel), jnp.eye(3))))
+        error = np.degrees(np.asarray(jp.rotation_angle(chain.relative_rotations, jnp.asarray(true_rel))))
+        status, continuity = np.asarray(chain.status), np.asarray(chain.continuity)
+        origin, positions = np.asarray(chain.origin), np.asarray(seq.positions)
+        shift = np.linalg.norm(true_rel @ (origin - positions[0]) + positions - origin, axis=1)
+        for k in range(1, steps):
+            frames.append((family, sigma, angle[k], int(status[k]), bool(continuity[k]), float(error[k]), shift[k]))
+        print(
+            index,
+            family,
+            sigma,
+            f"{float(np.degrees(np.linalg.norm(np.asarray(tumble.rate)))):.2f} °/s",
+            f"reach {angle.max():.1f}°, successes {int(np.sum(status[1:] == 0))}/{steps - 1}",
+            flush=True,
+        )
+    rows = []
+    for lo, hi in zip(REACH_BINS_DEG[:-1], REACH_BINS_DEG[1:], strict=True):
+        inside = [f for f in frames if lo <= f[2] < hi]
+        if not inside:
+            continue
+        success = [f for f in inside if f[3] == 0]
+        errors = np.array([f[5] for f in success])
+        rows.append(
+            {
+                "bin_deg": [lo, hi],
+                "frames": len(inside),
+                "success_share": len(success) / len(inside),
+                "continuity_share": sum(f[4] for f in inside) / len(inside),
+                "error_median_deg": float(np.median(errors)) if len(errors) else None,
+                "error_p90_deg": float(np.quantile(errors, 0.9)) if len(errors) else None,
+                "successes_over_1deg": int(np.sum(errors > 1.0)),
+                "origin_shift_median_cm": float(100 * np.median([f[6] for f in inside])),
+                "origin_shift_max_cm": float(100 * max(f[6] for f in inside)),
+            }
+        )
+    fmt = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
+    table = (
+        "| rotation from the keyframe, ° | frames | success | accepted by continuity "
+        "| error median / p90, ° | successes > 1° | origin shift median / max, cm |\n"
+    )
+    table += (
+        "|---|---|---|---|---|---|---|\n"
+        + "\n".join(
+            f"| {r['bin_deg'][0]}–{r['bin_deg'][1]} | {r['frames']} | {r['success_share']:.2f} | "
+            f"{r['continuity_share']:.2f} | {fmt(r['error_median_deg'])} / {fmt(r['error_p90_deg'])} | "
+            f"{r['successes_over_1deg']} | {r['origin_shift_median_cm']:.1f} / {r['origin_shift_max_cm']:.1f} |"
+            for r in rows
+        )
+        + "\n"
+    )
+    print(table)
+    write_json("tracking_reach.json", {"tumbles": tumbles, "duration_s": duration, "rate_hz": rate_hz, "bins": rows})
+    (RESULTS / "tracking_reach.md").write_text(table)
+
+
+@functools.partial(jax.jit, static_argnums=(1, 3))
+def _reach_program(clouds, config, key, steps):
+    """`chain_estimates` against frame 0 alone (no switch within `steps` frames)."""
+    return chain_estimates(clouds, config, key, keyframe_every=steps, keyframe_reach=None)
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -178,19 +380,28 @@ def issue_case(runs: int = 3, duration: float = 10.0, rate_hz: float = 25.0) -> 
 
 
 def main(tumbles: int = 20, duration: float = 10.0, rate_hz: float = 25.0, mode: str = "default") -> None:
-    """`mode` "guided": `jp.track(..., guided=True)`, written to `tracking_benchmark_guided.*`."""
-    guided = mode == "guided"
+    """`mode`: one of `MODES`; other modes than the default are written to
+    `tracking_benchmark_<mode>.*`, and only the default's registrations are saved."""
     rows = []
     for index in range(tumbles):
-        row = one_tumble(index, duration, rate_hz, guided)
+        row = one_tumble(index, duration, rate_hz, MODES[mode])
         rows.append(row)
         print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
-    write(rows, tumbles, duration, rate_hz, "tracking_benchmark_guided" if guided else "tracking_benchmark")
+    write(rows, tumbles, duration, rate_hz, "tracking_benchmark" + ("" if mode == "default" else f"_{mode}"))
+    if mode == "default":
+        stacked = {field: np.stack([s[field] for s in SAVED]) for field in SAVED[0]}
+        np.savez_compressed(RESULTS / "tracking_benchmark_chains.npz", **stacked)
 
 
 if __name__ == "__main__":
     if sys.argv[1:] == ["summarise"]:
         resummarise()
+    elif sys.argv[1:] == ["registrations"]:
+        registration_errors()
+    elif sys.argv[1:2] == ["refilter"]:
+        refilter(json.loads(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "options")
+    elif sys.argv[1:2] == ["reach"]:
+        reach(*(f(a) for f, a in zip((int, float, float), sys.argv[2:], strict=False)))
     elif sys.argv[1:2] == ["issue"]:
         issue_case(*(int(a) for a in sys.argv[2:3]))
     else:

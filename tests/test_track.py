@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose._estimate import AMBIGUOUS, SUCCESS
+from jaxpose._estimate import AMBIGUOUS, DEGENERATE, LOW_SCORE, NON_FINITE, NOT_CONVERGED, SUCCESS
 from jaxpose.sim import Tumble, paper_pose, simulate_sequence, tumble_poses
 from jaxpose.tracking._track import (
     FILTER_BAD_MEASUREMENT,
@@ -25,7 +25,9 @@ from jaxpose.tracking._track import (
     covariance_usable,
     filter_chain,
     filter_keyframes,
+    keyframe_switch,
     measurement_usable,
+    motion_reached,
     predicted_motion,
     track,
 )
@@ -270,7 +272,6 @@ def test_track_with_the_default_config_on_random_tumbles_is_finite_and_near_the_
     result = track(seq.clouds, dt, key=jax.random.key(seed), guided=guided)
     assert _all_finite(result)
     assert result.filter_status.shape == (6,)
-    assert guided or not np.any(np.asarray(result.continuity))
     # Frames whose estimate is no success are predicted only (at 2 cm noise some registrations
     # end "not converged"); the filter must still have fused most of them.
     assert np.mean(np.asarray(result.filter_status) == FILTER_UPDATED) >= 0.5
@@ -336,9 +337,9 @@ def test_predicted_motion_extrapolates_a_constant_screw_motion_exactly():
     R_true = R9 @ Rk.T
     np.testing.assert_allclose(np.asarray(R), R_true, atol=1e-9)
     np.testing.assert_allclose(np.asarray(t), t9 - R_true @ tk, atol=1e-9)
-    # With nothing registered but frame 0 (both "last" frames the identity) it predicts rest.
+    # With nothing registered but frame 0 (base and last both frame 0) it predicts rest.
     eye, zero = np.eye(3), np.zeros(3)
-    R, t = predicted_motion((eye, zero, jnp.asarray(-1)), (eye, zero, jnp.asarray(0)), (eye, zero), jnp.asarray(4))
+    R, t = predicted_motion((eye, zero, jnp.asarray(0)), (eye, zero, jnp.asarray(0)), (eye, zero), jnp.asarray(4))
     np.testing.assert_allclose(np.asarray(R), eye, atol=1e-12)
     np.testing.assert_allclose(np.asarray(t), zero, atol=1e-12)
 
@@ -356,7 +357,13 @@ def _hypotheses_at(degrees, distinct):
         (0.2, AMBIGUOUS, [True, True], 0, True),
         (1.4, AMBIGUOUS, [True, True], 0, False),  # nearest more than 0.5° away: unresolved
         (2.9, AMBIGUOUS, [True, False], 0, False),  # a repeat is never chosen
-        (2.9, SUCCESS, [True, True], 1, False),  # only an ambiguous estimate is resolved
+        (2.9, SUCCESS, [True, True], 0, False),  # a success needs no continuity
+        (0.9, LOW_SCORE, [True, True], 0, True),  # a weak estimate within 1° of the prediction
+        (1.1, NOT_CONVERGED, [True, False], 0, False),  # … and not beyond
+        (0.9, NOT_CONVERGED, [True, False], 0, True),
+        (2.9, LOW_SCORE, [True, True], 0, False),  # never its alternative
+        (0.0, DEGENERATE, [True, False], 0, False),  # nor a degenerate or non-finite one
+        (0.0, NON_FINITE, [True, False], 0, False),
     ],
 )
 def test_continuity_chooses_the_hypothesis_nearest_the_prediction(predicted_deg, status, distinct, chosen, resolved):
@@ -376,3 +383,36 @@ def test_an_update_whose_covariance_is_not_semidefinite_is_refused():
     assert int(code) == FILTER_BAD_UPDATE
     np.testing.assert_array_equal(np.asarray(kept.cov), np.asarray(predicted.cov))
     assert not bool(covariance_usable(broken.cov)) and bool(covariance_usable(predicted.cov))
+
+
+def test_a_keyframe_switch_waits_for_the_first_registered_frame_once_due():
+    """Keyframes every 5 frames; frames 5 and 6 are missed, so the switch comes at 7, and the
+    next one is due at 12, not at 10."""
+    registered = np.ones(16, bool)
+    registered[[5, 6]] = False
+    key_k, switches = 0, []
+    for k in range(1, 16):
+        if bool(keyframe_switch(jnp.asarray(k), jnp.asarray(key_k), 5, jnp.asarray(registered[k]))):
+            key_k = k
+            switches.append(k)
+    assert switches == [7, 12]
+
+
+def test_a_keyframe_switch_is_due_once_the_motion_reaches_its_share_of_the_box():
+    """The motion from the keyframe is due a switch once any component of p uses
+    `keyframe_reach` of the search box (±20°, ±0.10 m by default); the switch still waits for
+    a registered frame, and None or a config without a box search never reaches."""
+    config = jp.Config()
+    box = np.array([config.search.angle_box] * 3 + [config.search.shift_box] * 3)
+    for component in range(6):
+        for share, expected in ((0.49, False), (0.51, True)):
+            p = np.zeros(6)
+            p[component] = -share * box[component]
+            assert bool(motion_reached(jnp.asarray(p), config, 0.5)) is expected
+    far = jnp.asarray(0.9 * box)
+    assert not bool(motion_reached(far, config, None))
+    assert not bool(motion_reached(far, jp.Config.capture(), 0.5))
+    k, key_k = jnp.asarray(3), jnp.asarray(0)
+    assert bool(keyframe_switch(k, key_k, 100, jnp.asarray(True), jnp.asarray(True)))
+    assert not bool(keyframe_switch(k, key_k, 100, jnp.asarray(False), jnp.asarray(True)))
+    assert not bool(keyframe_switch(k, key_k, 100, jnp.asarray(True), jnp.asarray(False)))

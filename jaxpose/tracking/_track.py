@@ -4,13 +4,16 @@ Two pure steps, also usable on their own: [`chain_estimates`][] registers every 
 chains the motions, [`filter_keyframes`][] (or [`filter_chain`][]) runs a filter over them
 (cheap, so a filter can be tuned on one set of registrations); [`track`][] is both.
 
-**Chaining.** Frame k is registered against the current keyframe (the first frame, then
-every `keyframe_every` frames where that frame is registered), so the motion measured
-stays inside the search box and the errors of frame-to-frame steps do not add up at every
-frame: only each keyframe switch adds its pair's error. With `guided`, each registration
-starts its second surface fit from the motion predicted at a constant rate
-(`predicted_motion`), and an ambiguous one is resolved by that prediction where it can be
-(`continuity_choice`). The chained motion (R_0k, t_0k) maps frame 0's points to frame k's, in the camera frame c.
+**Chaining.** Frame k is registered against the current keyframe: the first frame, then the
+first registered frame once the motion measured from the keyframe uses `keyframe_reach` of
+the search box (or `keyframe_every` frames have passed). So the motion measured stays inside
+the search box, and the errors of frame-to-frame steps do not add up at every frame: only
+each keyframe switch adds its pair's error, and a slow tumble switches seldom. The motion
+predicted at a constant rate (`predicted_motion`) resolves an ambiguous registration and
+accepts a weak one (low score, not converged) where it agrees with it
+(`continuity_choice`); with `guided`, each registration also starts its second surface fit
+from that prediction. The chained motion (R_0k, t_0k) maps frame 0's points to frame k's,
+in the camera frame c.
 
 **State** ([`TrackFilter`][], an `eqx.Module`): the target's rotation since frame 0,
 A = R_0k (on SO(3), error state as a rotation vector on the left), its angular velocity ω
@@ -47,13 +50,14 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 from .._checks import is_concrete
 from .._cloud import Cloud
 from .._config import Config
-from .._estimate import AMBIGUOUS, SUCCESS, Hypotheses, estimate_problem
+from .._estimate import AMBIGUOUS, LOW_SCORE, NOT_CONVERGED, SUCCESS, Hypotheses, estimate_problem
 from .._fine import fine_covariance
 from .._frame import plane_frame
 from .._poses import displacement_from_motion, motion_from_displacement
 from .._problem import Problem, sized_sequence_config
 from .._programs import BoundedJit
 from .._rotations import rotation_angle
+from .._search import box_scale
 from .._tree import tree_finite, tree_select
 
 FILTER_UPDATED, FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE = 0, 1, 2, 3
@@ -256,9 +260,10 @@ class Chain(eqx.Module):
     stage's least squares scaled by [`COVARIANCE_SCALE`][], identity·1e-4 where the fine
     stage is off) and `switched` (frame k became the keyframe after its estimate).
 
-    `continuity` (None: none): frame k's estimate was `ambiguous`, and the measurement is the
-    hypothesis that motion continuity chose (`continuity_choice`); such a frame counts as
-    registered."""
+    `continuity` (None: none): motion continuity made frame k's estimate a registration
+    (`continuity_choice`): an `ambiguous` estimate, whose measurement is the hypothesis
+    nearest the prediction, or a weak one (low score, not converged) that agrees with the
+    prediction; such a frame counts as registered."""
 
     rotations: Float[Array, "T 3 3"]
     translations: Float[Array, "T 3"]
@@ -308,12 +313,12 @@ class Track(eqx.Module):
     translation in m; from the fine stage, as `Chain.relative_cov`). Frames registered
     against one keyframe share its noise; chaining adds each keyframe's error to all later
     frames. [`jaxpose.identify`][] uses these. `continuity` (as `Chain.continuity`): frames
-    whose ambiguous estimate motion continuity resolved; they count as registered
+    whose ambiguous or weak estimate motion continuity resolved; they count as registered
     (`registered`)."""
 
     def registered(self) -> Bool[Array, " T"]:
         """Frames whose measurement entered the chain: a successful estimate, or an ambiguous
-        one resolved by continuity."""
+        or weak one resolved by continuity."""
         return is_registered(self.status, self.continuity)
 
     rotations: Float[Array, "T 3 3"]
@@ -373,12 +378,16 @@ class KeyframeFilter(eqx.Module):
     def update(self, R_rel, t_rel, noise: Float[Array, "6 6"]) -> KeyframeFilter:
         """Fuse a measured keyframe → now motion (R_rel, t_rel; camera frame c) with
         covariance `noise` (left rotation vector in rad, then m)."""
-        M, Mr = self._predicted_motion()
-        residual = jnp.concatenate([_log(R_rel @ M.T), t_rel - (self.now.position - Mr)])
-        dx, cov = _kalman_step(self.cov, self._jacobian(), residual, noise)
+        dx, cov = _kalman_step(self.cov, self._jacobian(), self._residual(R_rel, t_rel), noise)
         now = self.now.corrected(dx[ERR_STATE], cov[ERR_STATE, ERR_STATE])
         key_attitude = _exp(dx[ERR_KEY_ATTITUDE]) @ self.key_attitude
         return KeyframeFilter(now, key_attitude, self.key_position + dx[ERR_KEY_POSITION], cov)
+
+    def _residual(self, R_rel, t_rel) -> Float[Array, "6"]:
+        """The measured keyframe → now motion less the predicted one (left rotation vector in
+        rad, then m)."""
+        M, Mr = self._predicted_motion()
+        return jnp.concatenate([_log(R_rel @ M.T), t_rel - (self.now.position - Mr)])
 
     def _predicted_motion(self):
         """The predicted keyframe → now rotation M = A_now A_keyᵀ and M r_key (m)."""
@@ -432,30 +441,62 @@ within this fraction of `Thresholds.ambiguous_deg` of the predicted rotation (th
 ambiguous estimate are more than `ambiguous_deg` apart, so at most one can)."""
 
 
+KEYFRAME_EVERY = 250
+"""Default of `keyframe_every`: the most frames between keyframe switches (10 s at 25 Hz; the
+motion, `KEYFRAME_REACH`, usually decides first)."""
+
+KEYFRAME_REACH: float | None = 0.4
+"""Default of `keyframe_reach`: the share of the search box that the motion from the keyframe
+may use before a switch is due (see `motion_reached`): 8° about a plane axis or 4 cm of the
+plane origin's shift with the default box. Each switch adds that frame's registration error
+to every later frame, so a slow tumble should switch seldom; registrations against one
+keyframe kept their accuracy up to 10–12° of rotation and lost it beyond 15°
+(`experiments/tracking_benchmark.py reach`, docs, Tracking)."""
+
+
 def is_registered(status: Int[Array, " T"], continuity: Bool[Array, " T"] | None) -> Bool[Array, " T"]:
-    """A successful estimate, or an ambiguous one that motion continuity resolved."""
+    """A successful estimate, or an ambiguous or weak one that motion continuity resolved."""
     ok = status == SUCCESS
     return ok if continuity is None else ok | continuity
 
 
+WEAK_FRACTION = 1.0
+"""A weak estimate (`Status.low_score` or `Status.not_converged`) is accepted by continuity when
+it lies within this fraction of `Thresholds.ambiguous_deg` of the predicted rotation. Under
+range noise the pattern score falls below `Thresholds.min_score` for estimates as good as the
+successes; refusing them all had left such tumbles without a single keyframe switch, so the
+motion from the keyframe grew until nothing registered. On the tracking benchmark the frames
+accepted this way erred as the successes did (Chibis-M at σ = 2 cm: 0.68° median against
+0.75°; `experiments/tracking_benchmark.py registrations`, docs, Tracking)."""
+
+
 def continuity_choice(hypotheses: Hypotheses, status: Int[Array, ""], R_pred: Float[Array, "3 3"], config: Config):
-    """The distinct hypothesis of an estimate (its `hypotheses` and `status`) nearest the
-    predicted rotation `R_pred` (keyframe → now, camera frame), and whether it resolves the
-    estimate: the estimate is ambiguous and that hypothesis lies within
-    `CONTINUITY_FRACTION` × `Thresholds.ambiguous_deg` of the prediction. Returns (index,
-    resolved)."""
+    """What motion continuity makes of an estimate (its `hypotheses` and `status`) given the
+    predicted rotation `R_pred` (keyframe → now, camera frame). Returns (index, resolved):
+
+    - ambiguous: the distinct hypothesis nearest the prediction, resolved when it lies within
+      `CONTINUITY_FRACTION` × `Thresholds.ambiguous_deg` of it;
+    - weak (low score or not converged): the estimate itself (index 0), accepted when it lies
+      within `WEAK_FRACTION` × `Thresholds.ambiguous_deg` of the prediction;
+    - otherwise: index 0, not resolved (a success needs no continuity, a degenerate,
+      non-finite or boxed-in estimate gets none)."""
     H = hypotheses
     angle = jnp.where(H.distinct, rotation_angle(H.rotation, jnp.broadcast_to(R_pred, H.rotation.shape)), jnp.inf)
-    j = jnp.argmin(angle)
-    gate = jnp.radians(CONTINUITY_FRACTION * config.thresholds.ambiguous_deg)
-    return j, (status == AMBIGUOUS) & (angle[j] <= gate)
+    nearest = jnp.argmin(angle)
+    gate = jnp.radians(config.thresholds.ambiguous_deg)
+    ambiguous = (status == AMBIGUOUS) & (angle[nearest] <= CONTINUITY_FRACTION * gate)
+    weak = ((status == LOW_SCORE) | (status == NOT_CONVERGED)) & (angle[0] <= WEAK_FRACTION * gate)
+    return jnp.where(ambiguous, nearest, 0), ambiguous | weak
 
 
 def predicted_motion(before, last, keyframe, k):
     """The motion from the keyframe to frame k (camera frame, x ↦ R x + t) predicted at a
-    constant rate: the screw motion between the last two registered frames, `before` and
-    `last` (each (R, t, index) of the motion from frame 0), carried on from `last` to frame k
-    (SE(3) log and exp, jaxlie). `keyframe` is (R, t) of the keyframe from frame 0."""
+    constant rate: the screw motion from `before` to `last` (each (R, t, index) of the motion
+    from frame 0; `chain_estimates` passes the keyframe before the current one and the last
+    registered frame, a whole keyframe segment apart once a switch has happened, so that one
+    registration's error is divided by a long baseline), carried on from `last` to
+    frame k (SE(3) log and exp, jaxlie). `keyframe` is (R, t) of the keyframe from frame 0.
+    With `before` and `last` the same frame the prediction is no motion."""
     (R0, t0, k0), (R1, t1, k1), (Rk, tk) = before, last, keyframe
     pose = lambda R, t: jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(R), t)  # noqa: E731
     step = (pose(R1, t1) @ pose(R0, t0).inverse()).log() / jnp.maximum(k1 - k0, 1).astype(t1.dtype)
@@ -464,8 +505,39 @@ def predicted_motion(before, last, keyframe, k):
     return relative.rotation().as_matrix(), relative.translation()
 
 
+def keyframe_switch(
+    k: Int[Array, ""],
+    key_k: Int[Array, ""],
+    keyframe_every: int,
+    registered: Bool[Array, ""],
+    reached: Bool[Array, ""] | bool = False,
+):
+    """Whether frame k becomes the keyframe: the switch is due `keyframe_every` frames after
+    the last keyframe `key_k`, or as soon as the motion measured from the keyframe has
+    `reached` its limit (`motion_reached`), and happens at the first `registered` frame from
+    then on. Waiting for the next multiple of `keyframe_every` instead would let the motion from
+    the keyframe grow by another `keyframe_every` frames after one missed frame, and a larger
+    motion is more often missed again (a noise-free fragment at 8 °/s lost its track that way)."""
+    return ((k - key_k >= keyframe_every) | reached) & registered
+
+
+def motion_reached(p: Float[Array, "6"], config: Config, keyframe_reach: float | None) -> Bool[Array, ""]:
+    """Whether a motion from the keyframe, p (frame n of the keyframe, radians and metres),
+    uses `keyframe_reach` of the search box in any component (`GlobalSearch.angle_box`,
+    `shift_box`): the next frames would soon leave the box. False where `keyframe_reach` is
+    None or the config searches the whole rotation group instead of a box (`Config.capture()`)."""
+    if keyframe_reach is None or config.so3 is not None:
+        return jnp.asarray(False)
+    return jnp.any(jnp.abs(p) >= keyframe_reach * box_scale(config).astype(p.dtype))
+
+
 def chain_estimates(
-    clouds: Cloud, config: Config, key: PRNGKeyArray, keyframe_every: int = 25, guided: bool = False
+    clouds: Cloud,
+    config: Config,
+    key: PRNGKeyArray,
+    keyframe_every: int = KEYFRAME_EVERY,
+    guided: bool = False,
+    keyframe_reach: float | None = KEYFRAME_REACH,
 ) -> Chain:
     """Register each frame against the current keyframe and chain the motions from frame 0.
 
@@ -475,12 +547,18 @@ def chain_estimates(
       `simulate_sequence(...).clouds`.
     - `config`: the estimate's [`jaxpose.Config`][] (its `max_points` must hold every frame).
     - `key`: frame k's estimate uses `fold_in(key, k)`.
-    - `keyframe_every`: frames between keyframe switches (25 = 1 s at 25 Hz); a switch
-      happens only on a registered frame.
+    - `keyframe_every`: the most frames between keyframe switches; a switch happens only on a
+      registered frame: the first one once it is due.
+    - `keyframe_reach`: a switch is also due once the motion measured from the keyframe uses
+      this fraction of the search box in any component (`motion_reached`); None: by frame
+      count alone.
     - `guided`: pass each estimate the motion predicted at a constant rate
-      (`predicted_motion`) as its `guess`, and resolve an ambiguous estimate by motion
-      continuity (`continuity_choice`). Off by default: on the 20 tumbles of
+      (`predicted_motion`) as its `guess`. Off by default: on the 20 tumbles of
       `experiments/tracking_benchmark.py` it did not help (docs, Tracking).
+
+    Motion continuity (`continuity_choice`, against the motion predicted at a constant rate)
+    resolves an ambiguous estimate and accepts a weak one (low score, not converged) that
+    agrees with the prediction; such frames count as registered (`Chain.continuity`).
 
     Pure and jittable (`lax.scan` over frames).
     """
@@ -489,19 +567,16 @@ def chain_estimates(
     eye = jnp.eye(3, dtype=origin.dtype)
 
     def step(carry, inputs):
-        key_cloud, key_R, key_t, last_R, last_t, last_k, before_R, before_t, before_k = carry
+        key_cloud, key_k, key_R, key_t, last_R, last_t, last_k, base_R, base_t, base_k = carry
         k, cloud = inputs
         problem = Problem.build(key_cloud, cloud, config)
+        base, last = (base_R, base_t, base_k), (last_R, last_t, last_k)
+        R_pred, t_pred = predicted_motion(base, last, (key_R, key_t), k)
         guess = None
-        if guided:  # static: the default path computes no prediction
-            last = (last_R, last_t, last_k)
-            R_pred, t_pred = predicted_motion((before_R, before_t, before_k), last, (key_R, key_t), k)
+        if guided:  # static
             guess = displacement_from_motion(problem.frame.origin, problem.frame.axes, R_pred, t_pred)
         est = estimate_problem(problem, config, jax.random.fold_in(key, k), guess)
-        if guided:
-            j, resolved = continuity_choice(est.hypotheses, est.status, R_pred, config)
-        else:
-            j, resolved = 0, jnp.asarray(False)
+        j, resolved = continuity_choice(est.hypotheses, est.status, R_pred, config)
         H = est.hypotheses
         R_rel, t_rel = (
             jnp.where(resolved, H.rotation[j], est.rotation),
@@ -518,22 +593,22 @@ def chain_estimates(
         usable = measurement_usable(R_rel, t_rel, cov)
         cov = jnp.where(ok & usable, cov, jnp.eye(6, dtype=origin.dtype))  # finite even when unused
         # A keyframe switch needs a usable measurement: the filter clones its state there.
-        switch = (k % keyframe_every == 0) & ok & usable
+        reached = motion_reached(p, config, keyframe_reach)
+        switch = keyframe_switch(k, key_k, keyframe_every, ok & usable, reached)
+        # The prediction's base: the keyframe before the current one (frame 0 until a switch).
+        base = tuple(jnp.where(switch, new, old) for new, old in zip((key_R, key_t, key_k), base, strict=True))
         key_cloud = tree_select(switch, cloud, key_cloud)
+        key_k = jnp.where(switch, k, key_k)
         key_R, key_t = jnp.where(switch, R, key_R), jnp.where(switch, t, key_t)
         out = (R, t, R @ origin + t, est.status, R_rel, t_rel, cov, switch, resolved)
-        # The last two registered frames (frame 0 counts as registered) give the prediction.
-        before = tuple(
-            jnp.where(ok, new, old) for new, old in ((last_R, before_R), (last_t, before_t), (last_k, before_k))
-        )
         last_k = jnp.where(ok, k, last_k)
-        return (key_cloud, key_R, key_t, R, t, last_k, *before), out
+        return (key_cloud, key_k, key_R, key_t, R, t, last_k, *base), out
 
     zeros = jnp.zeros(3, origin.dtype)
     frames = jnp.arange(1, clouds.valid.shape[0])
     rest = jax.tree.map(lambda x: x[1:], clouds)
     start_k = jnp.asarray(0, frames.dtype)
-    carry = (first, eye, zeros, eye, zeros, start_k, eye, zeros, start_k - 1)
+    carry = (first, start_k, eye, zeros, eye, zeros, start_k, eye, zeros, start_k)
     _, outs = jax.lax.scan(step, carry, (frames, rest))
     head = (eye, zeros, origin, jnp.asarray(SUCCESS, outs[3].dtype), eye, zeros, jnp.eye(6, dtype=origin.dtype))
     head = (*head, jnp.asarray(True), jnp.asarray(False))
@@ -667,8 +742,9 @@ def track(
     dt: Float[ArrayLike, ""],
     config: Config | None = None,
     key: PRNGKeyArray | None = None,
-    keyframe_every: int = 25,
+    keyframe_every: int = KEYFRAME_EVERY,
     guided: bool = False,
+    keyframe_reach: float | None = KEYFRAME_REACH,
     **filter_options,
 ) -> Track:
     """Track a sequence of clouds: `chain_estimates` then `filter_keyframes`.
@@ -681,7 +757,7 @@ def track(
       capacities left at None are sized from the whole sequence (any frame may become the
       keyframe); under jit from the clouds' row counts.
     - `key`: PRNG key of the searches (required).
-    - `keyframe_every`: frames between keyframe switches.
+    - `keyframe_every`, `keyframe_reach`: when the keyframe switches (see `chain_estimates`).
     - `guided`: registrations guided by the motion predicted at a constant rate (see
       `chain_estimates`); off by default.
     - `filter_options`: go to `filter_keyframes`.
@@ -696,11 +772,13 @@ def track(
         raise ValueError("track needs a PRNG key: track(clouds, dt, key=jax.random.key(0)).")
     config = Config() if config is None else config
     if not is_concrete(clouds):
-        return _track(clouds, jnp.asarray(dt), config, key, keyframe_every, guided, filter_options)
+        return _track(clouds, jnp.asarray(dt), config, key, keyframe_every, guided, keyframe_reach, filter_options)
     _check_sequence(clouds, dt)
     config = sized_sequence_config(clouds, config)
     dtype = clouds.points.dtype
-    return _track_program(clouds, jnp.asarray(dt, dtype), config, key, keyframe_every, guided, filter_options)
+    return _track_program(
+        clouds, jnp.asarray(dt, dtype), config, key, keyframe_every, guided, keyframe_reach, filter_options
+    )
 
 
 def _check_sequence(clouds: Cloud, dt) -> None:
@@ -714,8 +792,9 @@ def _check_sequence(clouds: Cloud, dt) -> None:
         jax.tree.map(lambda x, k=k: x[k], clouds).check(f"frame {k}")
 
 
-def _track(clouds, dt, config, key, keyframe_every, guided, filter_options) -> Track:
-    return filter_keyframes(chain_estimates(clouds, config, key, keyframe_every, guided), dt, **filter_options)
+def _track(clouds, dt, config, key, keyframe_every, guided, keyframe_reach, filter_options) -> Track:
+    chain = chain_estimates(clouds, config, key, keyframe_every, guided, keyframe_reach)
+    return filter_keyframes(chain, dt, **filter_options)
 
 
 _track_program = BoundedJit(_track)
@@ -732,6 +811,8 @@ __all__ = [
     "chain_estimates",
     "filter_chain",
     "filter_keyframes",
+    "keyframe_switch",
+    "motion_reached",
     "measurement_covariance",
     "measurement_usable",
     "track",
