@@ -12,10 +12,11 @@ registered frames (a success, or an ambiguous estimate resolved by motion contin
 fused frames, non-finite outputs, and the time per frame (compile excluded, measured
 separately). Per family and overall: median, p90 and max.
 
-    uv run python experiments/tracking_benchmark.py [tumbles] [duration_s] [rate_hz] [mode]
-        → results/tracking_benchmark[_<mode>].{json,md}; mode "guided": `guided=True`;
-          "every25": keyframes every 25 frames, not by motion (`keyframe_every=25,
-          keyframe_reach=None`)
+    uv run python experiments/tracking_benchmark.py [tumbles] [duration_s] [rate_hz] [mode] [first]
+        → results/tracking_benchmark[_<mode>][_from<first>].{json,md}; mode "guided":
+          `guided=True`; "every25": keyframes every 25 frames, not by motion
+          (`keyframe_every=25, keyframe_reach=None`); `first`: the index of the first tumble
+          (20 gives a second draw of the same kinds of tumble)
     uv run python experiments/tracking_benchmark.py summarise   (the table again from the JSON's rows)
     uv run python experiments/tracking_benchmark.py issue [runs]
         → results/tracking_issue_case.{json,md}: issue 25's own N5 case (`issue_tumble`)
@@ -379,18 +380,23 @@ def issue_case(runs: int = 3, duration: float = 10.0, rate_hz: float = 25.0) -> 
     write(rows, runs, duration, rate_hz, "tracking_issue_case")
 
 
-def main(tumbles: int = 20, duration: float = 10.0, rate_hz: float = 25.0, mode: str = "default") -> None:
+def main(
+    tumbles: int = 20, duration: float = 10.0, rate_hz: float = 25.0, mode: str = "default", first: int = 0
+) -> None:
     """`mode`: one of `MODES`; other modes than the default are written to
-    `tracking_benchmark_<mode>.*`, and only the default's registrations are saved."""
+    `tracking_benchmark_<mode>.*`. `first`: the index of the first tumble (`one_tumble`); a
+    draw that does not start at 0 is written with the suffix `_from<first>`. Only the
+    default's registrations are saved."""
     rows = []
-    for index in range(tumbles):
+    for index in range(first, first + tumbles):
         row = one_tumble(index, duration, rate_hz, MODES[mode])
         rows.append(row)
         print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
-    write(rows, tumbles, duration, rate_hz, "tracking_benchmark" + ("" if mode == "default" else f"_{mode}"))
+    suffix = ("" if mode == "default" else f"_{mode}") + ("" if first == 0 else f"_from{first}")
+    write(rows, tumbles, duration, rate_hz, "tracking_benchmark" + suffix)
     if mode == "default":
         stacked = {field: np.stack([s[field] for s in SAVED]) for field in SAVED[0]}
-        np.savez_compressed(RESULTS / "tracking_benchmark_chains.npz", **stacked)
+        np.savez_compressed(RESULTS / f"tracking_benchmark{suffix}_chains.npz", **stacked)
 
 
 if __name__ == "__main__":
@@ -405,4 +411,4 @@ if __name__ == "__main__":
     elif sys.argv[1:2] == ["issue"]:
         issue_case(*(int(a) for a in sys.argv[2:3]))
     else:
-        main(*(f(a) for f, a in zip((int, float, float, str), sys.argv[1:], strict=False)))
+        main(*(f(a) for f, a in zip((int, float, float, str, int), sys.argv[1:], strict=False)))
