@@ -20,6 +20,7 @@ from jaxpose.tracking._track import (
     Chain,
     TrackFilter,
     _guarded_update,
+    _row,
     _skew,
     continuity_choice,
     covariance_usable,
@@ -28,6 +29,7 @@ from jaxpose.tracking._track import (
     keyframe_switch,
     measurement_usable,
     motion_reached,
+    nearest_semidefinite,
     predicted_motion,
     track,
 )
@@ -416,3 +418,41 @@ def test_a_keyframe_switch_is_due_once_the_motion_reaches_its_share_of_the_box()
     assert bool(keyframe_switch(k, key_k, 100, jnp.asarray(True), jnp.asarray(True)))
     assert not bool(keyframe_switch(k, key_k, 100, jnp.asarray(False), jnp.asarray(True)))
     assert not bool(keyframe_switch(k, key_k, 100, jnp.asarray(True), jnp.asarray(False)))
+
+
+def test_round_off_indefiniteness_is_repaired_and_a_fault_is_not():
+    """`nearest_semidefinite` returns a usable covariance bit for bit, lifts an eigenvalue that
+    round-off made slightly negative (the result is usable, with a non-negative diagonal and
+    within the floor of the original), and leaves a grossly indefinite one for the checks to
+    refuse."""
+    rng = np.random.default_rng(0)
+    basis, _ = np.linalg.qr(rng.normal(size=(21, 21)))
+    eig = np.logspace(-12, -1, 21)
+    good = (basis * eig) @ basis.T
+    np.testing.assert_array_equal(np.asarray(nearest_semidefinite(jnp.asarray(good))), good)
+    for negative, repaired in ((-1e-4, True), (-1e-2, False)):
+        bad = good + negative * 0.1 * np.outer(basis[:, 0], basis[:, 0]) - 1e-12 * np.outer(basis[:, 0], basis[:, 0])
+        assert not bool(covariance_usable(jnp.asarray(bad)))
+        fixed = np.asarray(nearest_semidefinite(jnp.asarray(bad)))
+        if repaired:
+            assert bool(covariance_usable(jnp.asarray(fixed)))
+            assert np.all(np.diag(fixed) >= 0)
+            np.testing.assert_allclose(fixed, bad, atol=2e-5)
+        else:
+            np.testing.assert_array_equal(fixed, bad)
+
+
+def test_a_slightly_indefinite_update_is_repaired_and_fused():
+    """An update whose covariance round-off left slightly indefinite is repaired and fused,
+    where it used to be refused (and the filter then kept predicting from a covariance that was
+    no longer semi-definite)."""
+    predicted = TrackFilter.start(jnp.zeros(3))
+    eig, vec = np.linalg.eigh(np.asarray(predicted.cov))
+    nudged = predicted.cov - 1e-4 * eig[-1] * jnp.asarray(np.outer(vec[:, 0], vec[:, 0]))
+    updated = eqx.tree_at(lambda f: f.cov, predicted, nudged)
+    assert not bool(covariance_usable(updated.cov))
+    ok = jnp.asarray(True)
+    kept, code = _guarded_update(predicted, predicted, updated, ok, ok, ok)
+    assert int(code) == FILTER_UPDATED
+    assert bool(covariance_usable(kept.cov))
+    assert np.all(np.isfinite(np.asarray(_row(kept)[-1])))

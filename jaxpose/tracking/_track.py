@@ -116,11 +116,45 @@ def covariance_usable(cov: Float[Array, "n n"]) -> Bool[Array, ""]:
     return finite & symmetric & semidefinite
 
 
+def nearest_semidefinite(cov: Float[Array, "n n"]) -> Float[Array, "n n"]:
+    """`cov` with round-off's indefiniteness removed: itself where it is a usable covariance
+    (`covariance_usable`, returned bit for bit) or where its most negative eigenvalue exceeds
+    `REPAIRABLE` of the largest (not round-off: left for the callers' checks to refuse);
+    otherwise the symmetric matrix with its eigenvectors and its eigenvalues raised to at
+    least `SEMIDEFINITE_FLOOR` of the largest.
+
+    Why: float32 round-off in the filter's products (F P Fᵀ, the Joseph form, the keyframe
+    clone) scales with the largest variance; after many near-exact measurements (a noise-free
+    view) the attitude's and rate's variances fall below it and can turn negative. A filter
+    that refused every such update kept predicting from a covariance that was itself no
+    longer semi-definite, and `rate_std` became NaN for every later frame (a noise-free N5
+    tumble of the tracking benchmark's second draw)."""
+    finite = jnp.all(jnp.isfinite(cov))
+    safe = jnp.where(finite, cov, jnp.eye(cov.shape[0], dtype=cov.dtype))
+    eig, vec = jnp.linalg.eigh((safe + safe.T) / 2)
+    largest = jnp.maximum(eig[-1], jnp.finfo(cov.dtype).tiny)
+    lifted = (vec * jnp.maximum(eig, SEMIDEFINITE_FLOOR * largest)[None, :]) @ vec.T
+    repair = finite & ~covariance_usable(cov) & (eig[0] >= -REPAIRABLE * largest)
+    return jnp.where(repair, (lifted + lifted.T) / 2, cov)
+
+
+SEMIDEFINITE_FLOOR = 1e-6
+"""Smallest eigenvalue, relative to the largest, of a covariance that `nearest_semidefinite`
+repairs: about ten times float32's round-off, so that the repaired matrix stays
+semi-definite after its own round-off."""
+
+REPAIRABLE = 1e-3
+"""Most negative eigenvalue, relative to the largest, that `nearest_semidefinite` takes for
+round-off and repairs; a covariance further from semi-definite is a fault, not round-off."""
+
+
 def _guarded_update(filt, predicted, updated, estimate_ok, usable, innovation_ok):
     """The updated filter where every check passed, else the prediction; and the frame's
-    filter status (see `FILTER_STATUS_NAME`). An update whose covariance is no longer positive
-    semi-definite (float32 round-off after a measurement of condition ≈ 10¹¹) is refused, so
-    that no later standard deviation is the root of a negative variance."""
+    filter status (see `FILTER_STATUS_NAME`). An updated covariance that round-off left
+    slightly indefinite is repaired (`semidefinite`) before the checks; one that is still not
+    positive semi-definite, or not finite, refuses the update, so that no later standard
+    deviation is the root of a negative variance."""
+    updated = updated.semidefinite()
     good_update = innovation_ok & tree_finite(updated) & covariance_usable(updated.cov)
     status = jnp.select(
         [~estimate_ok, ~usable, ~good_update],
@@ -240,6 +274,11 @@ class TrackFilter(eqx.Module):
         """Whether the innovation covariance of an [`update`][] with `noise` is positive definite."""
         S = _innovation(self.cov, _POSE_ROWS, noise)
         return _positive_definite((S + S.T) / 2)
+
+    def semidefinite(self) -> TrackFilter:
+        """This state with its covariance repaired where round-off left it indefinite
+        (`nearest_semidefinite`)."""
+        return eqx.tree_at(lambda f: f.cov, self, nearest_semidefinite(self.cov))
 
 
 _POSE_ROWS = np.zeros((6, 15), np.float32)
@@ -409,6 +448,13 @@ class KeyframeFilter(eqx.Module):
         """Whether the innovation covariance of an [`update`][] with `noise` is positive definite."""
         S = _innovation(self.cov, self._jacobian(), noise)
         return _positive_definite((S + S.T) / 2)
+
+    def semidefinite(self) -> KeyframeFilter:
+        """This state with its (21, 21) covariance repaired where round-off left it indefinite
+        (`nearest_semidefinite`); `now.cov` stays its leading block."""
+        cov = nearest_semidefinite(self.cov)
+        now = eqx.tree_at(lambda f: f.cov, self.now, cov[ERR_STATE, ERR_STATE])
+        return KeyframeFilter(now, self.key_attitude, self.key_position, cov)
 
     def clone(self, shared: Float[Array, "6 6"] | None = None) -> KeyframeFilter:
         """Make the current state the keyframe (after frame k becomes the new keyframe).
@@ -645,7 +691,7 @@ def filter_chain(
 
     def step(filt, inputs):
         R, point, ok = inputs
-        predicted = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
+        predicted = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise).semidefinite()
         usable = measurement_usable(R, point, noise)
         updated = predicted.update(R, point, noise)
         filt, code = _guarded_update(filt, predicted, updated, ok, usable, predicted.innovation_ok(noise))
@@ -707,7 +753,7 @@ def filter_keyframes(
 
     def step(filt, inputs):
         R_rel, t_rel, cov, ok, switched = inputs
-        predicted = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise)
+        predicted = filt.predict(dt, rate_noise, accel_noise, spin_accel_noise).semidefinite()
         usable = measurement_usable(R_rel, t_rel, cov)
         cov = jnp.where(usable, cov, jnp.eye(6, dtype=cov.dtype))  # the update is computed, then discarded
         noise = (1 - shared_fraction) * cov
@@ -715,7 +761,7 @@ def filter_keyframes(
         filt, code = _guarded_update(filt, predicted, updated, ok, usable, predicted.innovation_ok(noise))
         # The chain switched keyframes: later measurements are against the new one, so the
         # clone follows it whether or not this frame's update was kept.
-        filt = tree_select(switched, filt.clone(shared_fraction * cov), filt)
+        filt = tree_select(switched, filt.clone(shared_fraction * cov).semidefinite(), filt)
         return filt, (*_row(filt.now), code)
 
     # Frame 0 is the first keyframe: its share comes with the first registration's covariance
@@ -733,7 +779,8 @@ def filter_keyframes(
 
 
 def _row(filt: TrackFilter):
-    std = jnp.sqrt(jnp.diag(filt.cov)[ERR_RATE])
+    # A usable covariance's diagonal can be negative by round-off (`PSD_TOL`): zero, not NaN.
+    std = jnp.sqrt(jnp.maximum(jnp.diag(filt.cov)[ERR_RATE], 0.0))
     return filt.attitude, filt.rate, filt.spin_accel, filt.position, filt.velocity, std
 
 
@@ -815,5 +862,6 @@ __all__ = [
     "motion_reached",
     "measurement_covariance",
     "measurement_usable",
+    "nearest_semidefinite",
     "track",
 ]
