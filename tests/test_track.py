@@ -261,7 +261,10 @@ def test_random_tumbles_are_rigid_bodies_with_rates_in_range():
         np.testing.assert_allclose(np.asarray(tumble.attitude @ tumble.attitude.T), np.eye(3), atol=1e-6)
 
 
-@pytest.mark.parametrize(("seed", "guided"), [(0, False), (1, False), pytest.param(0, True, marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    ("seed", "guided"),
+    [(0, False), pytest.param(1, False, marks=pytest.mark.slow), pytest.param(0, True, marks=pytest.mark.slow)],
+)
 def test_track_with_the_default_config_on_random_tumbles_is_finite_and_near_the_truth(seed, guided):
     # Property test, short: 6 frames at 12.5 Hz of N5 (1.6 m) on a random tumble with 0–2 cm
     # range noise, through the public call with no config, plain and guided by the predicted
