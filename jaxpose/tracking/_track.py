@@ -109,9 +109,13 @@ def covariance_usable(cov: Float[Array, "n n"]) -> Bool[Array, ""]:
     semi-definite to within `PSD_TOL` of its largest eigenvalue (see `measurement_usable`)."""
     finite = jnp.all(jnp.isfinite(cov))
     safe = jnp.where(finite, cov, jnp.eye(cov.shape[0], dtype=cov.dtype))
-    scale = jnp.max(jnp.abs(safe))
-    symmetric = jnp.max(jnp.abs(safe - safe.T)) <= SYMMETRY_TOL * scale
-    eig = jnp.linalg.eigvalsh((safe + safe.T) / 2)
+    return _usable(finite, safe, jnp.linalg.eigvalsh((safe + safe.T) / 2))
+
+
+def _usable(finite, safe, eig) -> Bool[Array, ""]:
+    """`covariance_usable` from its parts: whether the covariance was `finite`, its finite
+    stand-in `safe`, and the eigenvalues `eig` (ascending) of safe's symmetric part."""
+    symmetric = jnp.max(jnp.abs(safe - safe.T)) <= SYMMETRY_TOL * jnp.max(jnp.abs(safe))
     semidefinite = (eig[-1] > 0) & (eig[0] >= -PSD_TOL * eig[-1])
     return finite & symmetric & semidefinite
 
@@ -134,7 +138,7 @@ def nearest_semidefinite(cov: Float[Array, "n n"]) -> Float[Array, "n n"]:
     eig, vec = jnp.linalg.eigh((safe + safe.T) / 2)
     largest = jnp.maximum(eig[-1], jnp.finfo(cov.dtype).tiny)
     lifted = (vec * jnp.maximum(eig, SEMIDEFINITE_FLOOR * largest)[None, :]) @ vec.T
-    repair = finite & ~covariance_usable(cov) & (eig[0] >= -REPAIRABLE * largest)
+    repair = finite & ~_usable(finite, safe, eig) & (eig[0] >= -REPAIRABLE * largest)
     return jnp.where(repair, (lifted + lifted.T) / 2, cov)
 
 
