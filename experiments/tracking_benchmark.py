@@ -66,16 +66,36 @@ def true_rates(R: np.ndarray, rate_hz: float) -> np.ndarray:
     return np.concatenate([rate[:1], rate])
 
 
+BENCHMARK_SEEDS = 1000
+"""Seed base of the benchmark's tumbles (`draw_tumble`); `reach` draws others (`REACH_SEEDS`)."""
+
+REACH_SEEDS = 3000
+
 MODES = {"default": {}, "guided": {"guided": True}, "every25": {"keyframe_every": 25, "keyframe_reach": None}}
 """`jp.track` options of each benchmark mode."""
 
 
-def one_tumble(index: int, duration: float, rate_hz: float, options: dict | None = None) -> dict:
+def draw_tumble(index: int, seed_base: int) -> tuple[str, float, Tumble, jax.Array]:
+    """Tumble `index` of a draw: its family and noise level (cm) in turn, the camera inertial
+    for even indices and orbital for odd ones, `Tumble.random` from the key `seed_base` +
+    `index` (folded with 0; 1 and 2 give the simulation's and the tracker's keys)."""
     family = FAMILIES[index % len(FAMILIES)]
     sigma = NOISE_CM[(index // len(FAMILIES)) % len(NOISE_CM)]
-    orbital = bool(index % 2)
-    key = jax.random.key(1000 + index)
-    tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=orbital)
+    key = jax.random.key(seed_base + index)
+    tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=bool(index % 2))
+    return family, sigma, tumble, key
+
+
+def simulate_tumble(family: str, sigma: float, tumble: Tumble, key, duration: float, rate_hz: float):
+    """The tumble's clouds (`simulate_sequence`) seen by the CamCube with range noise `sigma`
+    cm at 5 m, growing with range."""
+    camera = jp.Camera.camcube2(noise_sigma=sigma / 100, noise_range_ref=5.0)
+    target = getattr(jp.targets, family)()
+    return simulate_sequence(camera, target, tumble, duration, rate_hz, key=jax.random.fold_in(key, 1))
+
+
+def one_tumble(index: int, duration: float, rate_hz: float, options: dict | None = None) -> dict:
+    family, sigma, tumble, key = draw_tumble(index, BENCHMARK_SEEDS)
     return run_tumble(index, family, sigma, tumble, key, duration, rate_hz, options)
 
 
@@ -96,9 +116,7 @@ def run_tumble(index, family, sigma, tumble, key, duration, rate_hz, options=Non
     """Simulate one tumble (range noise `sigma` cm at 5 m, growing with range), track it with
     the default config and measure it (see the module docstring)."""
     orbital = bool(tumble.orbit_rate)
-    target = getattr(jp.targets, family)()
-    camera = jp.Camera.camcube2(noise_sigma=sigma / 100, noise_range_ref=5.0)
-    seq = simulate_sequence(camera, target, tumble, duration, rate_hz, key=jax.random.fold_in(key, 1))
+    seq = simulate_tumble(family, sigma, tumble, key, duration, rate_hz)
     clouds = jax.block_until_ready(seq.clouds)
     _track_program.last_compile_s = 0.0
     t0 = time.perf_counter()
@@ -165,14 +183,21 @@ def chain_of_track(saved: dict) -> Chain:
     return Chain(*(jnp.asarray(a) for a in arrays), jnp.asarray(saved["continuity"]))
 
 
+def saved_tumbles() -> tuple[dict, list[dict]]:
+    """The last default run: its JSON (`tracking_benchmark.json`) and, per tumble in its rows'
+    order, the saved registrations and true rotations (`tracking_benchmark_chains.npz`)."""
+    saved = np.load(RESULTS / "tracking_benchmark_chains.npz")
+    benchmark = json.loads((RESULTS / "tracking_benchmark.json").read_text())
+    fields = ("truth", *REGISTRATIONS)
+    return benchmark, [{field: saved[field][i] for field in fields} for i in range(len(benchmark["rows"]))]
+
+
 def registration_errors() -> None:
     """Rotation errors (°) of the saved registrations keyframe → k against the truth, the
     successes apart from the frames motion continuity accepted → `tracking_registrations.*`."""
-    saved = np.load(RESULTS / "tracking_benchmark_chains.npz")
-    rows = json.loads((RESULTS / "tracking_benchmark.json").read_text())["rows"]
+    benchmark, tumbles = saved_tumbles()
     out = []
-    for i, row in enumerate(rows):
-        tumble = {field: saved[field][i] for field in ("truth", *REGISTRATIONS)}
+    for row, tumble in zip(benchmark["rows"], tumbles, strict=True):
         chain, R = chain_of_track(tumble), tumble["truth"]
         true_rel = np.einsum("kij,klj->kil", R, R[tumble["keyframes"]])
         error = np.degrees(np.asarray(jp.rotation_angle(chain.relative_rotations, jnp.asarray(true_rel))))
@@ -215,13 +240,11 @@ def registration_errors() -> None:
 def refilter(options: dict, name: str) -> None:
     """The saved registrations of the last default run through `filter_keyframes(**options)`
     → `tracking_refilter_<name>.{json,md}`."""
-    saved = np.load(RESULTS / "tracking_benchmark_chains.npz")
-    benchmark = json.loads((RESULTS / "tracking_benchmark.json").read_text())
-    previous, duration, rate_hz = benchmark["rows"], benchmark["duration_s"], benchmark["rate_hz"]
+    benchmark, tumbles = saved_tumbles()
+    duration, rate_hz = benchmark["duration_s"], benchmark["rate_hz"]
     run = jax.jit(lambda chain: filter_keyframes(chain, 1 / rate_hz, **options))
     rows = []
-    for i, old in enumerate(previous):
-        tumble = {field: saved[field][i] for field in ("truth", *REGISTRATIONS)}
+    for old, tumble in zip(benchmark["rows"], tumbles, strict=True):
         result = run(chain_of_track(tumble))
         rows.append({**old, **filter_errors(result, tumble["truth"], rate_hz), "filter_options": options})
     write(rows, len(rows), duration, rate_hz, f"tracking_refilter_{name}")
@@ -240,13 +263,8 @@ def reach(tumbles: int = 10, duration: float = 10.0, rate_hz: float = 25.0) -> N
     1° off, and the true motion of frame 0's plane origin (cm) → `tracking_reach.{json,md}`."""
     frames = []
     for index in range(tumbles):
-        family = FAMILIES[index % len(FAMILIES)]
-        sigma = NOISE_CM[(index // len(FAMILIES)) % len(NOISE_CM)]
-        key = jax.random.key(3000 + index)
-        tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=bool(index % 2))
-        camera = jp.Camera.camcube2(noise_sigma=sigma / 100, noise_range_ref=5.0)
-        target = getattr(jp.targets, family)()
-        seq = simulate_sequence(camera, target, tumble, duration, rate_hz, key=jax.random.fold_in(key, 1))
+        family, sigma, tumble, key = draw_tumble(index, REACH_SEEDS)
+        seq = simulate_tumble(family, sigma, tumble, key, duration, rate_hz)
         config = sized_sequence_config(seq.clouds, jp.Config())
         steps = int(seq.rotations.shape[0])
         chain = _reach_program(seq.clouds, config, jax.random.fold_in(key, 2), steps)
