@@ -9,6 +9,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import jaxlie
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from . import _fine
@@ -22,7 +23,7 @@ from ._objective import hard_score, soft_score
 from ._poses import motion_from_displacement
 from ._problem import Problem, _build, check_range, grow_capacities, raise_for_codes, sized_config
 from ._programs import BoundedJit
-from ._rotations import rotation, rotation_angle
+from ._rotations import angles, rotation, rotation_angle
 from ._search import GlobalResult, LocalResult, box_scale, local_refine, restarted_search
 
 
@@ -41,9 +42,10 @@ class Status(eqx.Enumeration):
         "the motion may lie outside it; widen the box (Config.wide()) or give a prior"
     )
     ambiguous = (
-        "two surface fits, from the pattern search's result and from rest, explain the current cloud "
-        "equally well but differ by more than Thresholds.ambiguous_deg: the views do not fix the motion "
-        "(e.g. a turn about a near-symmetry axis); Estimate.alternative holds the other fit"
+        "two surface fits (from the pattern search's result, from rest, or turned about a near-symmetry "
+        "axis) explain the current cloud equally well but differ by more than Thresholds.ambiguous_deg: "
+        "the views do not fix the motion (e.g. a turn about a near-symmetry axis); Estimate.alternative "
+        "holds the other fit"
     )
 
 
@@ -163,20 +165,55 @@ FINE_TIE = 0.01
 """Inlier fractions closer than this count as equal when two fine-stage results are compared."""
 
 
+def prefers(a: FineResult, b: FineResult) -> Bool[Array, ""]:
+    """Whether b explains more of the current cloud than a: a larger inlier fraction, or,
+    within `FINE_TIE`, a smaller weighted RMS residual."""
+    return (b.inliers > a.inliers + FINE_TIE) | ((b.inliers >= a.inliers - FINE_TIE) & (b.rms < a.rms))
+
+
 def better_fine(a, b):
-    """The fine-stage result that explains more of the current cloud: the larger inlier
-    fraction, or, within `FINE_TIE`, the smaller weighted RMS residual."""
-    pick_b = (b.inliers > a.inliers + FINE_TIE) | ((b.inliers >= a.inliers - FINE_TIE) & (b.rms < a.rms))
+    """The fine-stage result that explains more of the current cloud ([`prefers`][])."""
+    pick_b = prefers(a, b)
     return jax.tree.map(lambda x, y: jnp.where(pick_b, y, x), a, b)
+
+
+def apart(a: FineResult, b: FineResult, config: Config) -> Bool[Array, ""]:
+    """Whether the rotations of two fine-stage results differ by more than
+    `Thresholds.ambiguous_deg`."""
+    angle = rotation_angle(rotation(*a.params[:3]), rotation(*b.params[:3]))
+    return angle > jnp.radians(config.thresholds.ambiguous_deg)
 
 
 def equally_good_and_apart(a: FineResult, b: FineResult, config: Config) -> Bool[Array, ""]:
     """Whether two fine-stage results explain the current cloud equally well (inlier fractions
     within `FINE_TIE`) while their rotations differ by more than `Thresholds.ambiguous_deg`:
     the surfaces do not decide between them (see `Status.ambiguous`)."""
-    apart = rotation_angle(rotation(*a.params[:3]), rotation(*b.params[:3]))
-    tie = jnp.abs(a.inliers - b.inliers) <= FINE_TIE
-    return tie & (apart > jnp.radians(config.thresholds.ambiguous_deg))
+    return (jnp.abs(a.inliers - b.inliers) <= FINE_TIE) & apart(a, b, config)
+
+
+def symmetry_turns(frame: PlaneFrame, config: Config) -> Float[Array, "2 3"]:
+    """The two turns, ±`FineStage.turn_deg` about the previous cloud's near-symmetry axis, as
+    rotation vectors in frame ν (radians); zero when the view is not nearly symmetric.
+
+    The frame's principal moments come in descending order, one per axis of frame n. When the
+    two largest are within `FineStage.symmetry_ratio` of each other the cloud is elongated
+    (a cylinder seen from the side) and the axis of the smallest moment, axis 3, is the one it
+    nearly turns about; when the two smallest are, it is flat (a disk) and the axis is axis 1.
+    The moved frame ν carries the previous body's axes, so the same axis serves there."""
+    moments, ratio = frame.inertia, config.fine.symmetry_ratio
+    elongated = moments[1] >= ratio * moments[0]
+    flat = moments[2] >= ratio * moments[1]
+    axis = jnp.where(elongated, jnp.eye(3, dtype=moments.dtype)[2], jnp.eye(3, dtype=moments.dtype)[0])
+    angle = jnp.where(elongated | flat, jnp.radians(config.fine.turn_deg), 0.0).astype(moments.dtype)
+    return jnp.stack([angle * axis, -angle * axis])
+
+
+def turned(p: Float[Array, "6"], turn: Float[Array, "3"]) -> Float[Array, "6"]:
+    """The displacement p (frame n) with the moved frame ν turned further by the rotation
+    vector `turn` (radians, frame ν) about its origin: G' = G exp(turn), the same translation.
+    A body nearly symmetric about a ν axis looks almost the same after such a turn."""
+    G = rotation(*p[:3]) @ jaxlie.SO3.exp(turn).as_matrix()
+    return p.at[:3].set(angles(G).astype(p.dtype))
 
 
 def polished(fine: FineResult, exact: FineResult) -> FineResult:
@@ -191,6 +228,22 @@ def polished(fine: FineResult, exact: FineResult) -> FineResult:
     return jax.tree.map(lambda a, b: jnp.where(fine.rms < _fine.EXACT_RMS, a, b), better_fine(fine, exact), fine)
 
 
+def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResult, config: Config):
+    """Another fit against the best so far, the runner-up `other` and whether the estimate is
+    ambiguous. The challenger becomes the best when preferred ([`prefers`][]), and the best
+    it displaces becomes the runner-up if the two lie apart. A challenger that loses becomes
+    the runner-up when it lies apart from the best and the runner-up does not, or is less
+    preferred. A challenger that explains the cloud as well and lies apart makes the estimate
+    ambiguous (`equally_good_and_apart`). An inactive run (no inliers) changes nothing."""
+    live = challenger.inliers > 0
+    wins = live & prefers(best, challenger)
+    rival = live & ~wins & apart(best, challenger, config) & (~apart(best, other, config) | prefers(other, challenger))
+    tie = live & equally_good_and_apart(best, challenger, config)
+    pick = lambda flag, x, y: jax.tree.map(lambda u, v: jnp.where(flag, u, v), x, y)  # noqa: E731
+    demoted = wins & apart(best, challenger, config)
+    return pick(wins, challenger, best), pick(demoted, best, pick(rival, challenger, other)), ambiguous | tie
+
+
 def _take(tree, i: int):
     return jax.tree.map(lambda x: x[i], tree)
 
@@ -203,25 +256,40 @@ def best_run(runs: FineResult, count: int) -> FineResult:
     return best
 
 
-def fine_passes(problem: Problem, config: Config, starts: Float[Array, "k 6"]) -> FineResult:
-    """The fine stage's runs, stacked `(k + 1,)` (or `(k,)` with `FineStage.anchor` "point"): run
-    i < k from `starts[i]` (frame n), then, where `best_run` of them shows no range noise, its
-    polish against planes through the previous points (see [`polished`][]; an inactive run
-    otherwise, `fine_refine(..., active=False)`).
+def fine_passes(
+    problem: Problem, config: Config, starts: Float[Array, "k 6"], turns: Float[Array, "r 3"] | None = None
+) -> FineResult:
+    """The fine stage's runs, stacked `(k + r + 1,)` (or `(k + r,)` with `FineStage.anchor`
+    "point"): run i < k from `starts[i]` (frame n); then run k + j from the best of those
+    (`best_run`) turned by `turns[j]` ([`turned`][]; an inactive run,
+    `fine_refine(..., active=False)`, where the turn is zero); then, where the best of all
+    shows no range noise, its polish against planes through the previous points (see
+    [`polished`][]; an inactive run otherwise).
 
     One `lax.scan` over the passes, so that the program holds one fine stage, not one per
     start: each copy cost about 1.3 s of tracing and compiling on the 2-core CPU. The passes
     run one after another, as separate calls would."""
     count = starts.shape[0]
-    passes = count + (config.fine.anchor != "point")
+    turns = jnp.zeros((0, 3), starts.dtype) if turns is None else turns.astype(starts.dtype)
+    fits = count + turns.shape[0]
+    passes = fits + (config.fine.anchor != "point")
     fine = problem.fine
 
     def one_pass(runs, i):
-        polish = i == count
-        best = best_run(runs, count)
-        start = jnp.where(polish, best.params, starts[jnp.minimum(i, count - 1)])
+        polish = i == fits
+        turning = (i >= count) & ~polish
+        best = best_run(runs, fits)
+        start = starts[jnp.minimum(i, count - 1)]
+        if turns.shape[0]:
+            turn = turns[jnp.clip(i - count, 0, turns.shape[0] - 1)]
+            start = jnp.where(turning, turned(best_run(runs, count).params, turn), start)
+            active = ~turning | jnp.any(turn != 0)
+        else:
+            active = True
+        start = jnp.where(polish, best.params, start)
+        active = jnp.where(polish, best.rms < _fine.EXACT_RMS, active)
         surface = eqx.tree_at(lambda f: f.offsets, fine, jnp.where(polish, exact_surface(fine).offsets, fine.offsets))
-        run = fine_refine(problem, config, start, surface, active=~polish | (best.rms < _fine.EXACT_RMS))
+        run = fine_refine(problem, config, start, surface, active=active)
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 
     shapes = jax.eval_shape(lambda: fine_refine(problem, config, starts[0]))
@@ -265,15 +333,19 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
         starts = [loc.params]
         if config.fine.from_rest:
             starts.append(jnp.zeros_like(loc.params) if guess is None else guess.astype(loc.params.dtype))
-        runs = fine_passes(problem, config, jnp.stack(starts))
+        turns = symmetry_turns(problem.frame, config) if config.fine.turn_deg > 0 else None
+        runs = fine_passes(problem, config, jnp.stack(starts), turns)
         fine = other = _take(runs, 0)
         if config.fine.from_rest:
             rest = _take(runs, 1)
             ambiguous = equally_good_and_apart(fine, rest, config)
             fine, other = better_fine(fine, rest), better_fine(rest, fine)
-            alternative = other.params
+        fits = len(starts) + (0 if turns is None else turns.shape[0])
+        for i in range(len(starts), fits):
+            fine, other, ambiguous = contest(fine, other, ambiguous, _take(runs, i), config)
+        alternative = other.params
         if config.fine.anchor != "point":
-            fine = polished(fine, _take(runs, len(starts)))
+            fine = polished(fine, _take(runs, fits))
         # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
         # free it can slide along it (tens of centimetres along a face on random views). Its
         # result is kept unless the method's reference score drops by more than the guard;

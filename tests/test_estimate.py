@@ -248,3 +248,75 @@ def test_two_equally_good_fits_far_apart_are_ambiguous(b_angles, b_inliers, expe
     config = jp.Config()
     assert bool(equally_good_and_apart(a, b, config)) == expected
     assert bool(equally_good_and_apart(b, a, config)) == expected
+
+
+def _frame_with_moments(moments):
+    from jaxpose._frame import PlaneFrame
+
+    return PlaneFrame(jnp.zeros(3), jnp.eye(3), jnp.asarray(moments), jnp.asarray(100), jnp.asarray(0))
+
+
+@pytest.mark.parametrize(
+    "moments, axis",
+    [
+        ((1.0, 0.92, 0.2), 2),  # elongated: the two largest moments close, it turns about axis 3
+        ((1.0, 0.5, 0.45), 0),  # flat: the two smallest close, it turns about axis 1
+        ((1.0, 0.7, 0.3), None),  # no two moments close: no turn
+    ],
+)
+def test_symmetry_turns_about_the_axis_of_the_distinct_moment(moments, axis):
+    from jaxpose._estimate import symmetry_turns
+
+    config = jp.Config()
+    turns = np.asarray(symmetry_turns(_frame_with_moments(moments), config))
+    assert turns.shape == (2, 3)
+    if axis is None:
+        np.testing.assert_array_equal(turns, 0.0)
+        return
+    expected = np.zeros(3)
+    expected[axis] = np.radians(config.fine.turn_deg)
+    np.testing.assert_allclose(turns, np.stack([expected, -expected]), atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_turned_displacement_turns_the_moved_frame_about_its_own_origin(seed):
+    """turned(p, v): G' = G exp(v), the translation kept; the moved frame's origin stays and a
+    point on the turn axis of ν stays where p put it."""
+    import jaxlie
+
+    from jaxpose._estimate import turned
+
+    rng = np.random.default_rng(seed)
+    p = jnp.asarray([*rng.uniform(-0.5, 0.5, 3), *rng.uniform(-0.1, 0.1, 3)])
+    v = jnp.asarray(rng.normal(size=3) * 0.3)
+    q = turned(p, v)
+    G = jp.rotation(*p[:3]) @ jaxlie.SO3.exp(v).as_matrix()
+    np.testing.assert_allclose(np.asarray(jp.rotation(*q[:3])), np.asarray(G), atol=1e-10)
+    np.testing.assert_array_equal(np.asarray(q[3:]), np.asarray(p[3:]))
+    on_axis = 0.7 * v / jnp.linalg.norm(v)  # a point of frame ν on the turn's axis
+    np.testing.assert_allclose(
+        np.asarray(jp.rotation(*q[:3]) @ on_axis), np.asarray(jp.rotation(*p[:3]) @ on_axis), atol=1e-10
+    )
+
+
+@pytest.mark.parametrize(
+    "challenger_angles, challenger_inliers, best_after, other_after, ambiguous_after",
+    [
+        ((0.0, 0.0, 15.0), 0.0, "best", "other", False),  # an inactive run changes nothing
+        ((0.0, 0.0, 15.0), 0.675, "best", "challenger", True),  # as good and apart: ambiguous
+        ((0.0, 0.0, 15.0), 0.72, "challenger", "best", False),  # clearly better and apart: it wins
+        ((0.0, 0.0, 0.3), 0.72, "challenger", "other", False),  # better, the same motion within 1°
+        ((0.0, 0.0, 15.0), 0.60, "best", "challenger", False),  # worse and apart: the runner-up
+    ],
+)
+def test_a_contest_of_fits(challenger_angles, challenger_inliers, best_after, other_after, ambiguous_after):
+    from jaxpose._estimate import contest
+
+    best = _fine_result((0.0, 0.0, 0.0), 0.67)
+    other = _fine_result((0.0, 0.2, 0.0), 0.66)  # the same motion as best within 1°
+    challenger = _fine_result(challenger_angles, challenger_inliers)
+    named = {"best": best, "other": other, "challenger": challenger}
+    new_best, new_other, ambiguous = contest(best, other, jnp.asarray(False), challenger, jp.Config())
+    np.testing.assert_array_equal(np.asarray(new_best.params), np.asarray(named[best_after].params))
+    np.testing.assert_array_equal(np.asarray(new_other.params), np.asarray(named[other_after].params))
+    assert bool(ambiguous) == ambiguous_after

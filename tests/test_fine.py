@@ -315,3 +315,25 @@ def test_the_fine_passes_are_the_separate_runs(paper_clouds):
     idle = jax.jit(lambda s: fine_refine(problem, config, s, active=False))(starts[0])
     np.testing.assert_array_equal(np.asarray(idle.params), np.asarray(starts[0]))
     assert int(idle.steps) == 0 and float(idle.inliers) == 0.0 and not bool(idle.converged)
+
+
+def test_the_turned_passes_start_from_the_best_fit_turned(paper_clouds):
+    """With `turns`, `_estimate.fine_passes` runs, after the starts, one run per turn from the
+    best of the starts' fits turned by it (`_estimate.turned`); a zero turn is an inactive run."""
+    from jaxpose._estimate import better_fine, fine_passes, turned
+
+    config = jp.Config(capacities=jp.Capacities(max_points=5120))
+    problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config)
+    truth = jp.true_displacement(
+        problem.frame, paper_rotation("previous"), T_PAPER, paper_rotation("variant2"), T_PAPER
+    )
+    starts = jnp.stack([truth + jnp.array([0.02, -0.01, 0.01, 0.01, 0.0, -0.01]), truth * 0.9])
+    turns = jnp.asarray([[0.0, 0.0, np.radians(3.0)], [0.0, 0.0, 0.0]])
+    runs = jax.jit(lambda s, t: fine_passes(problem, config, s, t))(starts, turns)
+    assert runs.params.shape == (5, 6)
+    one = jax.jit(lambda start: fine_refine(problem, config, start))
+    best = better_fine(one(starts[0]), one(starts[1]))
+    separate = one(turned(best.params, turns[0]))
+    np.testing.assert_allclose(np.asarray(runs.params[2]), np.asarray(separate.params), atol=1e-9)
+    assert int(runs.steps[2]) == int(separate.steps) > 0
+    assert int(runs.steps[3]) == 0 and float(runs.inliers[3]) == 0.0
