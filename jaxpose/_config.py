@@ -334,9 +334,10 @@ class Thresholds(eqx.Module):
     - `ambiguous_deg`: two surface fits (from the pattern search's result, from rest with
       `FineStage.from_rest`, or turned about a near-symmetry axis, `FineStage.turn_deg`) that
       explain the current cloud equally well (inlier fractions within 0.01) but whose
-      rotations differ by more than this (degrees) make the estimate `Status.ambiguous`. On the realistic subset (3 pairs per target and noise
-      level) such pairs were the upper stage's turns about its long axis, where the two fits
-      were 7–14° apart and one of them wrong.
+      rotations differ by more than this (degrees) make the estimate `Status.ambiguous`. On
+      the realistic subset (3 pairs per target and noise level) such pairs were the upper
+      stage's turns about its long axis, where the two fits were 7–14° apart and one of them
+      wrong.
     """
 
     min_score: Scalar = 0.7
