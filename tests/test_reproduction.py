@@ -4,6 +4,7 @@ the command end to end on small searches."""
 import csv
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from jaxpose._cli import app
@@ -34,6 +35,7 @@ def test_papers_truth_rows_are_recomputed_in_its_fixed_frame():
         np.testing.assert_allclose(paper_truth_angles(variant), printed, atol=0.01)
 
 
+@pytest.mark.slow  # the whole command (46 s); the paper's pairs are checked in test_estimate
 def test_reproduce_command_writes_tables_and_figures(tmp_path):
     result = CliRunner().invoke(app, ["reproduce", "--quick", "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
