@@ -97,7 +97,7 @@ def test_estimate_command_on_files(saved_pair, paper_clouds, monkeypatch, tmp_pa
     assert out["ambiguous"] in (True, False)
 
 
-@pytest.mark.slow  # the CLI compiles before it refuses (24 s); the boundary checks run in test_estimate
+@pytest.mark.slow  # 24 s on the 2-core CPU; the boundary checks also run in test_estimate
 def test_estimate_command_rejects_bad_input(saved_pair, tmp_path):
     prev, _ = saved_pair
     (tmp_path / "flat.csv").write_text("\n".join(f"{i % 7},{i // 7},0" for i in range(60)))

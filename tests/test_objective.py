@@ -214,7 +214,7 @@ def test_non_finite_or_misshapen_clouds_raise(paper_clouds):
         jp.Problem.build(good, jp.Cloud(good.points[:, :2], good.valid))
 
 
-@pytest.mark.slow  # compiles each build before it raises (27 s)
+@pytest.mark.slow  # 27 s on the 2-core CPU
 def test_capacities_too_small_for_the_clouds_raise_naming_the_field(paper_clouds):
     """The previous cloud is compacted to Capacities.max_prev_points valid points (4 194 here)."""
     prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
