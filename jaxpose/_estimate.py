@@ -236,11 +236,12 @@ def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResu
     preferred. A challenger that explains the cloud as well and lies apart makes the estimate
     ambiguous (`equally_good_and_apart`). An inactive run (no inliers) changes nothing."""
     live = challenger.inliers > 0
+    far = apart(best, challenger, config)
     wins = live & prefers(best, challenger)
-    rival = live & ~wins & apart(best, challenger, config) & (~apart(best, other, config) | prefers(other, challenger))
+    rival = live & ~wins & far & (~apart(best, other, config) | prefers(other, challenger))
     tie = live & equally_good_and_apart(best, challenger, config)
     pick = lambda flag, x, y: jax.tree.map(lambda u, v: jnp.where(flag, u, v), x, y)  # noqa: E731
-    demoted = wins & apart(best, challenger, config)
+    demoted = wins & far
     return pick(wins, challenger, best), pick(demoted, best, pick(rival, challenger, other)), ambiguous | tie
 
 
