@@ -123,6 +123,23 @@ def k_nearest(
     return grid.order[jnp.take_along_axis(cand.sorted_index, pos, 1)], -neg
 
 
+def nearest_in_graph(
+    points: Float[Array, "3 N"], graph: Int[Array, "N k"], guess: Int[Array, " S"], queries: Float[Array, "3 S"]
+) -> tuple[Int[Array, " S"], Float[Array, " S"]]:
+    """The nearest of each query among its `guess` point and that point's graph neighbours
+    (`graph[guess]`, indices into `points`), and its distance (metres).
+
+    One step of descent on a k-nearest-neighbour graph: where a query moved little since
+    `guess` was its nearest point, its new nearest is among guess's neighbours, and k + 1
+    distances replace the voxel search's 9·`slots`. Not exact in general (a query that moved
+    farther than the neighbourhood's radius gets a near point, not the nearest); the caller
+    decides when a step is small enough (`jaxpose._fine.GRAPH_STEP`)."""
+    cand = jnp.concatenate([guess[:, None], graph[guess]], axis=1)  # (S, k + 1)
+    d2 = sum((points[k][cand] - queries[k][:, None]) ** 2 for k in range(3))
+    best = jnp.argmin(d2, axis=1)
+    return jnp.take_along_axis(cand, best[:, None], 1)[:, 0], jnp.sqrt(jnp.take_along_axis(d2, best[:, None], 1)[:, 0])
+
+
 def spread_subset(mask: Bool[Array, " N"], size: int) -> tuple[Int[Array, " size"], Bool[Array, " size"]]:
     """Indices of at most `size` true entries of `mask`, evenly spread over them (all of them
     when there are at most `size`), and the mask of the live slots. Static shapes."""
@@ -156,6 +173,7 @@ __all__ = [
     "candidates",
     "k_nearest",
     "nearest",
+    "nearest_in_graph",
     "spread_subset",
     "voxel_grid",
     "voxel_spacing",

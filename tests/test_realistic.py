@@ -51,6 +51,34 @@ def test_voxel_grid_nearest_matches_brute_force_within_reach():
     np.testing.assert_allclose(kd2[within], exact5[within], rtol=1e-4, atol=1e-9)
 
 
+def test_a_step_of_graph_descent_finds_the_nearest_of_a_query_that_moved_little():
+    # A noisy sampled surface, its 20-nearest-neighbour graph, and queries that were nearest
+    # to some point and then moved by half a sampling step: the new nearest is among the old
+    # one and its neighbours, so the graph step finds the brute-force nearest.
+    rng = np.random.default_rng(1)
+    u, v = rng.uniform(-0.5, 0.5, (2, 3000))
+    pts = np.stack([u, v, 0.2 * np.abs(u) + 0.003 * rng.normal(size=u.size)]).astype(np.float32)
+    valid = np.ones(u.size, bool)
+    step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
+    grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
+    graph, _ = neighbours.k_nearest(grid, jnp.asarray(pts), 20, 16)
+    start = pts[:, :400] + 0.2 * step * rng.normal(size=(3, 400)).astype(np.float32)
+    guess, _ = neighbours.nearest(grid, jnp.asarray(start), 16)
+    direction = rng.normal(size=(3, 400))
+    moved = (start + 0.5 * step * direction / np.linalg.norm(direction, axis=0)).astype(np.float32)
+    idx, dist = neighbours.nearest_in_graph(jnp.asarray(pts), graph, guess, jnp.asarray(moved))
+    exact = np.sqrt(((moved.T[:, None, :] - pts.T[None]) ** 2).sum(-1))
+    np.testing.assert_allclose(np.asarray(dist), exact.min(1), rtol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(pts[:, np.asarray(idx)] - moved, axis=0), np.asarray(dist), rtol=1e-5)
+    # Moved far (ten steps), one step of descent is no longer exact: it returns a real point
+    # at its true distance, never nearer than the nearest.
+    far = (start + 10 * step * direction / np.linalg.norm(direction, axis=0)).astype(np.float32)
+    idx, dist = neighbours.nearest_in_graph(jnp.asarray(pts), graph, guess, jnp.asarray(far))
+    exact = np.sqrt(((far.T[:, None, :] - pts.T[None]) ** 2).sum(-1)).min(1)
+    assert np.all(np.asarray(dist) >= exact - 1e-6) and np.any(np.asarray(dist) > exact + 1e-4)
+    np.testing.assert_allclose(np.linalg.norm(pts[:, np.asarray(idx)] - far, axis=0), np.asarray(dist), rtol=1e-5)
+
+
 @pytest.mark.parametrize("count, line", [(3, False), (16, False), (60, True)])
 def test_voxel_grid_search_of_a_few_points_reads_windows_at_the_end_of_the_order(count, line):
     # Fewer points than slots, or a line of points a few per column: windows at the end of
