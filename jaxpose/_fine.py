@@ -22,10 +22,11 @@ points near the cutting planes:
   cloud) get weight 0.
 
 This is point-to-plane ICP (Chen & Medioni 1992) on the selected points:
-rounds of nearest-neighbour matching (a voxel search, or, while the points have moved little
-since the last search, a step of descent on the previous points' neighbour graph:
-`GRAPH_SHIFT`), each followed by optimistix's Gauss–Newton on the matched residuals. Its basin is a few degrees, so it follows the global search and the
-soft refine and never replaces them. Lengths in metres, angles in radians, frame n.
+rounds of nearest-neighbour matching (a voxel search, or, while the points have moved
+little since the last search, a step of descent on the previous points' neighbour graph:
+`GRAPH_SHIFT`), each followed by optimistix's Gauss–Newton on the matched residuals. Its
+basin is a few degrees, so it follows the global search and the soft refine and never
+replaces them. Lengths in metres, angles in radians, frame n.
 """
 
 from __future__ import annotations
@@ -331,10 +332,13 @@ a match are still beyond reach. The phases of a fit:
   searches the voxels, and only such a round ends it, as when every round searched.
 
 Measured against every round searching, from rest on realistic-benchmark pairs: noise-free
-N5 the same fit (`tests/test_fine.py`); with 1 cm noise within 0.07° and 0.04 cm on the satellite and the
-upper stage, with about half the searches. With the bound measured per round instead of
-since the last search, a slow crawl of small rounds kept the points first left unmatched out
-of the fit and ended 1° off (upper stage); with a bound of one voxel edge, 0.5° off."""
+N5 the same fit (`tests/test_fine.py`); with 1 cm noise within 0.07° and 0.04 cm on the
+satellite and the upper stage, with about half the searches. With the bound measured per
+round instead of since the last search, a slow crawl of small rounds kept the points first
+left unmatched out of the fit and ended 1° off (upper stage); with a bound of one voxel
+edge, 0.5° off (docs, Findings: matching by descent on the neighbour graph). The choice is
+a `lax.cond`: under `jax.vmap` with a batched choice both branches run, and a batch pays
+for the voxel search in every round."""
 
 
 def _round_matches(fine: FineCloud, q, last: Int[Array, " S"], reached: Bool[Array, " S"], local):
@@ -426,8 +430,8 @@ def fine_refine(
     solve only S residuals, so matching once per round rather than once per solver evaluation
     made the stage about 6× cheaper (370 → 65 ms on N5 variant 2); matching by graph descent
     where the points moved little since the last voxel search (`GRAPH_SHIFT`) reads 21
-    candidates per point instead of 144 in most later rounds. Stops when a round that searched the
-    voxels moves p by less than `ROUND_TOL` or than `NOISE_STEP` standard deviations, or after
+    candidates per point instead of 144 in most later rounds. Stops when a round that
+    searched the voxels moves p by less than `ROUND_TOL` or than `NOISE_STEP` standard deviations, or after
     `FineStage.rounds` rounds; `converged` says which. `fine` replaces the problem's previous
     side (e.g. [`exact_surface`][]). With `active` false (a boolean, possibly traced) no round
     runs: the result is `start`, not converged, with no inliers, so that a caller can compile

@@ -133,7 +133,7 @@ def nearest_in_graph(
     `guess` was its nearest point, its new nearest is among guess's neighbours, and k + 1
     distances replace the voxel search's 9·`slots`. Not exact in general (a query that moved
     farther than the neighbourhood's radius gets a near point, not the nearest); the caller
-    decides when a step is small enough (`jaxpose._fine.GRAPH_STEP`)."""
+    decides when a step is small enough (`jaxpose._fine.GRAPH_SHIFT`)."""
     cand = jnp.concatenate([guess[:, None], graph[guess]], axis=1)  # (S, k + 1)
     d2 = sum((points[k][cand] - queries[k][:, None]) ** 2 for k in range(3))
     best = jnp.argmin(d2, axis=1)

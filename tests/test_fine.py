@@ -11,7 +11,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose._problem import sized_config
 from jaxpose._fine import (
     Matches,
     _residuals,
@@ -22,6 +21,7 @@ from jaxpose._fine import (
     smallest_eigen,
     spread_subset,
 )
+from jaxpose._problem import sized_config
 
 CONFIG = jp.Config.fast(capacities=jp.Capacities(max_points=5120))
 
