@@ -25,6 +25,7 @@ from ._problem import Problem, _build, check_range, grow_capacities, raise_for_c
 from ._programs import BoundedJit
 from ._rotations import angles, rotation, rotation_angle
 from ._search import GlobalResult, LocalResult, box_scale, local_refine, restarted_search
+from ._tree import tree_select
 
 
 class Status(eqx.Enumeration):
@@ -173,15 +174,20 @@ def prefers(a: FineResult, b: FineResult) -> Bool[Array, ""]:
 
 def better_fine(a, b):
     """The fine-stage result that explains more of the current cloud ([`prefers`][])."""
-    pick_b = prefers(a, b)
-    return jax.tree.map(lambda x, y: jnp.where(pick_b, y, x), a, b)
+    return tree_select(prefers(a, b), b, a)
+
+
+def rotations_apart(p: Float[Array, "6"], q: Float[Array, "6"], config: Config) -> Bool[Array, ""]:
+    """Whether the rotations of two displacements p, q (frame n) differ by more than
+    `Thresholds.ambiguous_deg`."""
+    angle = rotation_angle(rotation(*p[:3]), rotation(*q[:3]))
+    return angle > jnp.radians(config.thresholds.ambiguous_deg)
 
 
 def apart(a: FineResult, b: FineResult, config: Config) -> Bool[Array, ""]:
     """Whether the rotations of two fine-stage results differ by more than
-    `Thresholds.ambiguous_deg`."""
-    angle = rotation_angle(rotation(*a.params[:3]), rotation(*b.params[:3]))
-    return angle > jnp.radians(config.thresholds.ambiguous_deg)
+    `Thresholds.ambiguous_deg` ([`rotations_apart`][])."""
+    return rotations_apart(a.params, b.params, config)
 
 
 def equally_good_and_apart(a: FineResult, b: FineResult, config: Config) -> Bool[Array, ""]:
@@ -224,8 +230,8 @@ def polished(fine: FineResult, exact: FineResult) -> FineResult:
     centroid error went from 0.09 to 0.01 cm (docs, Findings: the fine stage's anchor on the
     realistic benchmark). The polish replaces `fine` only when it converged and explains the
     cloud at least as well (`better_fine`)."""
-    exact = jax.tree.map(lambda a, b: jnp.where(exact.converged | ~fine.converged, a, b), exact, fine)
-    return jax.tree.map(lambda a, b: jnp.where(fine.rms < _fine.EXACT_RMS, a, b), better_fine(fine, exact), fine)
+    exact = tree_select(exact.converged | ~fine.converged, exact, fine)
+    return tree_select(fine.rms < _fine.EXACT_RMS, better_fine(fine, exact), fine)
 
 
 def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResult, config: Config):
@@ -240,9 +246,9 @@ def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResu
     wins = live & prefers(best, challenger)
     rival = live & ~wins & far & (~apart(best, other, config) | prefers(other, challenger))
     tie = live & equally_good_and_apart(best, challenger, config)
-    pick = lambda flag, x, y: jax.tree.map(lambda u, v: jnp.where(flag, u, v), x, y)  # noqa: E731
     demoted = wins & far
-    return pick(wins, challenger, best), pick(demoted, best, pick(rival, challenger, other)), ambiguous | tie
+    runner_up = tree_select(demoted, best, tree_select(rival, challenger, other))
+    return tree_select(wins, challenger, best), runner_up, ambiguous | tie
 
 
 def _take(tree, i: int):
@@ -358,13 +364,10 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
         p = jnp.where(fine_kept, fine.params, p)
         converged = jnp.where(fine_kept, fine.converged, converged)
         hard = jnp.where(fine_kept, fine_hard, hard)
-        apart = rotation_angle(rotation(*p[:3]), rotation(*other.params[:3])) > jnp.radians(
-            config.thresholds.ambiguous_deg
-        )
         candidates = (
             jnp.stack([p, other.params]),
             jnp.stack([jnp.where(fine_kept, fine.inliers, 0.0), other.inliers]),
-            jnp.stack([jnp.asarray(True), apart & fine_kept]),
+            jnp.stack([jnp.asarray(True), rotations_apart(p, other.params, config) & fine_kept]),
         )
     return glob, loc, p, converged, hard, fine, fine_kept, ambiguous & fine_kept, alternative, candidates
 
