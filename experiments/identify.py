@@ -19,6 +19,11 @@ Reported per case:
 A fifth case spins N5 about a principal axis: `observable` must be False.
 
     uv run python experiments/identify.py [duration_s] [rate_hz] [horizon_s]  →  results/identify.{json,md}
+    uv run python experiments/identify.py orbital [duration_s] [rate_hz] [horizon_s]  →  results/identify_orbital.*
+
+The tracks (each frame's chained motion, keyframe, registration flag and covariance) and the
+true motions go to `results/identify_tracks.npz`, so that `identify` can be studied again
+without tracking (`uv run python experiments/identify.py refit`).
 """
 
 from __future__ import annotations
@@ -36,15 +41,21 @@ from _common import RESULTS, write_json
 
 import jaxpose as jp
 from jaxpose.sim import Tumble, simulate_sequence
-from jaxpose.sim._sequence import tumble_poses
+from jaxpose.sim._sequence import C_FROM_O, tumble_poses
 from jaxpose.sim.targets import CHIBIS_M_INERTIA
+from jaxpose.tracking._identify import identify_tracked
 
 CASES = ("n5", "chibis_m", "satellite", "upper_stage", "n5_principal_spin")
+ORBITAL_CASES = ("n5_orbital", "chibis_m_orbital")
+"""Cases seen from a chaser whose camera is fixed in the orbital frame of a 500 km orbit
+(gravity-gradient torque; `identify(..., orbit=...)`): `identify.py orbital ...`."""
 DISTANCE = 6.0
 
 
 def make_tumble(case: str, key) -> Tumble:
-    base = Tumble.random(key, distance=DISTANCE, rates_deg_s=(3.0, 6.0))
+    orbital = case.endswith("_orbital")
+    base = Tumble.random(key, distance=DISTANCE, rates_deg_s=(3.0, 6.0), orbital_camera=orbital)
+    case = case.removesuffix("_orbital")
     if case == "chibis_m":
         axis = jnp.array([2.08, 3.01, 2.15])
         rate = math.radians(4.5) * axis / jnp.linalg.norm(axis)
@@ -81,7 +92,7 @@ def constant_rate(track: jp.Track, point: np.ndarray, horizon: float, dt: float)
 
 def one_case(case: str, index: int, duration: float, rate_hz: float, horizon: float) -> dict:
     key = jax.random.key(2000 + index)
-    family = "n5" if case.startswith("n5") else case
+    family = "n5" if case.startswith("n5") else case.removesuffix("_orbital")
     target = getattr(jp.targets, family)()
     tumble = make_tumble(case, jax.random.fold_in(key, 0))
     camera = jp.Camera.camcube2(noise_sigma=0.01, noise_range_ref=5.0)
@@ -92,7 +103,8 @@ def one_case(case: str, index: int, duration: float, rate_hz: float, horizon: fl
     track = jax.block_until_ready(jp.track(clouds, dt, key=jax.random.fold_in(key, 2)))
     track_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    dyn = jax.block_until_ready(jp.identify(track, dt))
+    orbit = jp.Orbit(jnp.asarray(tumble.orbit_rate), C_FROM_O) if case.endswith("_orbital") else None
+    dyn = jax.block_until_ready(jp.identify(track, dt, orbit=orbit))
     identify_s = time.perf_counter() - t0
 
     end = float(seq.times[-1]) + horizon
@@ -128,7 +140,18 @@ def one_case(case: str, index: int, duration: float, rate_hz: float, horizon: fl
         "identify_s": identify_s,
     }
     print({k: (np.round(v, 4).tolist() if isinstance(v, list) else v) for k, v in row.items()}, flush=True)
-    return row
+    saved = {
+        "rotations": track.rotations,
+        "points": track.points,
+        "keyframes": track.keyframes,
+        "registered": track.registered(),
+        "measurement_cov": track.measurement_cov,
+        "true_attitudes": tumble_poses(tumble, seq.times)[0],
+        "true_axes": truth(tumble, seq.times[:1])[2],
+        "true_ratios": jnp.asarray(moments[:2]),
+        "true_centre": jnp.asarray(centre),
+    }
+    return row, {f"{case}/{name}": np.asarray(value) for name, value in saved.items()}
 
 
 def markdown(rows: list[dict], duration: float, rate_hz: float, horizon: float) -> str:
@@ -152,13 +175,59 @@ def markdown(rows: list[dict], duration: float, rate_hz: float, horizon: float) 
     return head + "\n".join(lines) + "\n"
 
 
-def main(duration: float = 30.0, rate_hz: float = 10.0, horizon: float = 10.0):
-    rows = [one_case(case, i, duration, rate_hz, horizon) for i, case in enumerate(CASES)]
+def refit(**options) -> list[dict]:
+    """`identify` again on the tracks saved by the last run (`results/identify_tracks.npz`),
+    with `identify_tracked`'s `options`: the ratios' relative errors (%), the axes' errors (°)
+    and the centre's error (cm) per case."""
+    saved = np.load(RESULTS / "identify_tracks.npz")
+    rows = []
+    for case in CASES:
+
+        def get(name, case=case):
+            return saved[f"{case}/{name}"]
+
+        dyn = identify_tracked(
+            get("rotations"),
+            get("points"),
+            get("registered"),
+            get("keyframes"),
+            get("measurement_cov"),
+            float(saved["dt"]),
+            **options,
+        )
+        axes = get("true_axes")
+        cosines = np.abs(np.sum(np.asarray(dyn.principal_axes) * axes, axis=0))
+        rows.append(
+            {
+                "case": case,
+                "ratio_error_pct": (100 * (np.asarray(dyn.inertia_ratios) / get("true_ratios") - 1)).round(2).tolist(),
+                "axis_error_deg": np.degrees(np.arccos(np.clip(cosines, -1, 1))).round(2).tolist(),
+                "centre_error_cm": round(100 * float(np.linalg.norm(np.asarray(dyn.centre) - get("true_centre"))), 2),
+                "observable": bool(dyn.observable),
+            }
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def main(duration: float = 30.0, rate_hz: float = 10.0, horizon: float = 10.0, cases=CASES, name="identify"):
+    results = [one_case(case, i, duration, rate_hz, horizon) for i, case in enumerate(cases)]
+    rows = [row for row, _ in results]
+    np.savez_compressed(
+        RESULTS / f"{name}_tracks.npz", dt=1 / rate_hz, **{k: v for _, arrays in results for k, v in arrays.items()}
+    )
     text = markdown(rows, duration, rate_hz, horizon)
+    if cases is ORBITAL_CASES:
+        text = text.replace("inertial camera, torque-free", "camera fixed in the orbital frame, gravity gradient")
     print(text)
-    (RESULTS / "identify.md").write_text(text)
-    write_json("identify.json", {"duration_s": duration, "rate_hz": rate_hz, "horizon_s": horizon, "rows": rows})
+    (RESULTS / f"{name}.md").write_text(text)
+    write_json(f"{name}.json", {"duration_s": duration, "rate_hz": rate_hz, "horizon_s": horizon, "rows": rows})
 
 
 if __name__ == "__main__":
-    main(*(float(a) for a in sys.argv[1:4]))
+    if sys.argv[1:2] == ["refit"]:
+        refit()
+    elif sys.argv[1:2] == ["orbital"]:
+        main(*(float(a) for a in sys.argv[2:5]), cases=ORBITAL_CASES, name="identify_orbital")
+    else:
+        main(*(float(a) for a in sys.argv[1:4]))

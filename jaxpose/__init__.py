@@ -69,7 +69,9 @@ from .sim import simulate as simulate
 from .sim import simulate_sequence as simulate_sequence
 from .sim import targets as targets
 from .tracking import Dynamics as Dynamics
+from .tracking import Orbit as Orbit
 from .tracking import Track as Track
+from .tracking import body_model as body_model
 from .tracking import identify as identify
 from .tracking import track as track
 
@@ -80,6 +82,7 @@ __all__ = [
     "Config",
     "Dynamics",
     "FineStage",
+    "Orbit",
     "GlobalSearch",
     "Patterns",
     "Refine",
@@ -93,6 +96,7 @@ __all__ = [
     "Track",
     "Tumble",
     "angles",
+    "body_model",
     "displacement_from_motion",
     "enable_compile_cache",
     "estimate",

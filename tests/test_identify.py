@@ -13,8 +13,8 @@ import pytest
 
 import jaxpose as jp
 from jaxpose.sim import Tumble
-from jaxpose.sim._sequence import tumble_poses
-from jaxpose.tracking._identify import identify_motion
+from jaxpose.sim._sequence import C_FROM_O, tumble_poses
+from jaxpose.tracking._identify import decorrelated, identify_motion, shared_variance_ratio
 from jaxpose.tracking._track import Track, keyframe_indices
 
 DT, SECONDS, KEYFRAME_EVERY = 0.1, 30.0, 10
@@ -131,3 +131,71 @@ def test_identify_runs_under_jit():
     fn = jax.jit(lambda R_, t_: identify_motion(times, R_, t_, jnp.ones(times.shape[0], bool), references))
     d = fn(R, t)
     np.testing.assert_allclose(d.inertia_ratios, moments[:2], rtol=1e-4)
+
+
+def test_decorrelation_whitens_a_keyframes_shared_error():
+    """Within a keyframe's n frames the errors have covariance I + ρ 11ᵀ; `decorrelated` is
+    its inverse square root, so the transformed errors have covariance I. Frames not used
+    (the keyframe itself) are left out and come back as zeros."""
+    n, ratio = 5, 2.5
+    references = jnp.zeros(n + 1, jnp.int32)
+    used = jnp.arange(n + 1) > 0
+    columns = []
+    for i in range(n):
+        r = jnp.zeros((n + 1, 3)).at[i + 1, 0].set(1.0)
+        columns.append(decorrelated(r, used, references, jnp.asarray(ratio))[:, 0])
+    W = jnp.stack(columns, axis=1)  # (n + 1, n): frame ← used frame
+    assert float(jnp.abs(W[0]).max()) == 0.0
+    W = W[1:]
+    covariance = jnp.eye(n) + ratio * jnp.ones((n, n))
+    np.testing.assert_allclose(W @ covariance @ W.T, jnp.eye(n), atol=1e-12)
+
+
+def test_shared_variance_ratio_is_estimated_from_residuals():
+    """40 keyframes of 12 frames: a shared error of σ_s = 2 per keyframe and σ_w = 1 per
+    frame (ρ = 4); with no shared error, ρ ≈ 0."""
+    groups, per = 40, 12
+    references = jnp.repeat(jnp.arange(groups) * per, per)
+    used = references != jnp.arange(groups * per)
+    k1, k2 = jax.random.split(jax.random.key(3))
+    shared = 2.0 * jax.random.normal(k1, (groups * per, 3))[references]
+    own = jax.random.normal(k2, (groups * per, 3))
+    assert 3.0 < float(shared_variance_ratio(shared + own, used, references)) < 5.0
+    assert float(shared_variance_ratio(own, used, references)) < 0.1
+
+
+def test_the_orbits_camera_turn_is_the_simulators():
+    """A target at rest in inertial space with a spherical inertia (no gravity-gradient
+    torque), seen from the simulator's chaser fixed in the orbital frame: its apparent motion
+    is the camera's turn alone."""
+    still = eqx.tree_at(
+        lambda t: (t.rate, t.inertia), Tumble.random(jax.random.key(4), orbital_camera=True), (jnp.zeros(3), jnp.eye(3))
+    )
+    times = jnp.array([0.0, 300.0, 1200.0])
+    R, *_ = truth(still, times)
+    orbit = jp.Orbit(jnp.asarray(still.orbit_rate), C_FROM_O)
+    np.testing.assert_allclose(orbit.camera_turn(times), R, atol=1e-9)
+    assert float(jp.rotation_angle(R[-1], jnp.eye(3))) > 1.0  # 20 minutes of orbit: a real turn
+
+
+def test_an_orbiting_camera_and_the_gravity_gradient_are_identified():
+    """Exact measurements from the simulator's chaser fixed in the orbital frame, with the
+    gravity-gradient torque: `identify_motion` with the orbit recovers the dynamics; taking the
+    camera as inertial does not."""
+    target = eqx.tree_at(
+        lambda t: t.velocity,
+        Tumble.random(jax.random.key(5), rates_deg_s=(3.0, 8.0), orbital_camera=True),
+        jnp.zeros(3),
+    )
+    times, R, t, references, (axes, moments, centre, omega) = measurements(target)
+    valid = jnp.ones(times.shape[0], bool)
+    orbit = jp.Orbit(jnp.asarray(target.orbit_rate), C_FROM_O)
+    d = identify_motion(times, R, t, valid, references, None, 5, orbit=orbit)
+    np.testing.assert_allclose(d.inertia_ratios, moments[:2], rtol=1e-4)
+    assert axis_angles(d.principal_axes, axes).max() < 1e-4
+    later = jnp.array([0.0, float(times[-1]) + 10.0])
+    R_pred, _ = d.predict(later)
+    R_true, *_ = truth(target, later)
+    assert float(jp.rotation_angle(R_pred[1], R_true[1])) < 1e-5
+    inertial = identify_motion(times, R, t, valid, references, None, 5)
+    assert float(jnp.max(jnp.abs(inertial.inertia_ratios / moments[:2] - 1))) > 1e-3

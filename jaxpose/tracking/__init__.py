@@ -5,14 +5,21 @@ and the target's dynamics identified from the result.
 then runs an error-state Kalman filter on SO(3) × R³ that gives attitude, angular rate and
 acceleration, and the position and velocity of the first cloud's plane-frame origin.
 `identify(track, dt)` fits Euler's equations to the registrations: principal axes, inertia
-ratios, rate and centre of mass, with a prediction past the data.
+ratios, rate and centre of mass, with a prediction past the data. `body_model(clouds, track,
+dynamics)` fuses the registered clouds into a voxelised model in the principal frame.
 """
 
 from ._identify import (
     Dynamics as Dynamics,
 )
 from ._identify import (
+    Orbit as Orbit,
+)
+from ._identify import (
     identify as identify,
+)
+from ._model import (
+    body_model as body_model,
 )
 from ._track import (
     FILTER_BAD_MEASUREMENT as FILTER_BAD_MEASUREMENT,

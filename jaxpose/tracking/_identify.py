@@ -6,12 +6,15 @@ the path of its centre of mass. [`identify`][jaxpose.identify] estimates all of 
 motions that [`jaxpose.track`][] measures, and [`Dynamics.predict`][jaxpose.Dynamics.predict]
 carries them past the data.
 
-**Frames and conventions.** Frame c is the camera frame, taken as inertial: a chaser that
-holds its attitude, and no orbital dynamics over the window. The measured motion from the
-first frame to frame k is x ↦ R_k x + t_k in frame c (metres). The body's principal frame b
-has its axes along the columns of P (frame c at the first frame's time), ordered so that
-J1 ≤ J2 ≤ J3. Its attitude A(t) maps frame b to frame c, with A(0) = P. Then
+**Frames and conventions.** Frame c is the camera frame, by default taken as inertial: a
+chaser that holds its attitude, and no orbital dynamics over the window. The measured motion
+from the first frame to frame k is x ↦ R_k x + t_k in frame c (metres). The body's principal
+frame b has its axes along the columns of P (frame c at the first frame's time), ordered so
+that J1 ≤ J2 ≤ J3. Its attitude A(t) maps frame b to frame c at t = 0, with A(0) = P. Then
 R(t) = A(t) Pᵀ, and Euler's equations J ω̇ = −ω × Jω hold for the body rate ω in frame b.
+With an [`Orbit`][jaxpose.Orbit] (a camera fixed in the orbital frame), R(t) = Q(t) A(t) Pᵀ
+with the camera's own turn Q(t), and the gravity-gradient torque 3n² e × J e enters
+Euler's equations.
 
 **Fit, in three steps:**
 
@@ -20,22 +23,29 @@ R(t) = A(t) Pᵀ, and Euler's equations J ω̇ = −ω × Jω hold for the body 
    angular momentum R_k M u_k and the energy u_kᵀ M u_k are constant for the inertia tensor
    M = P J Pᵀ expressed in those axes. Both are linear in M's six entries, so M comes from
    the smallest singular vector of the stacked deviations from their means. Its eigenvectors
-   give P and its eigenvalues the ratios.
+   give P and its eigenvalues the ratios. Three starts, from h, 2h and 4h (`START_WINDOWS`).
 2. *Attitude, nonlinear.* optimistix Levenberg–Marquardt over the axes (a rotation vector
-   on the left of P), the two ratios (as logarithms) and the first frame's rate in frame c.
-   The residuals compare each measured motion keyframe j → k (a tracker registers frame k
-   against keyframe j) with the model's R(t_k) R(t_j)ᵀ, as a left rotation vector whitened by
-   the measurement's covariance. Comparing the chained R_0k instead would count every
-   keyframe's error again in all later frames. R(t) is integrated by diffrax through Euler's
-   equations and the quaternion kinematics (forward-mode differentiable).
+   on the left of P), the two ratios (as logarithms) and the first frame's rate in frame c,
+   from each start; the fit of least cost is kept. The residuals compare each measured
+   motion keyframe j → k (a tracker registers frame k against keyframe j) with the model's
+   R(t_k) R(t_j)ᵀ, as a left rotation vector whitened by the measurement's covariance.
+   Comparing the chained R_0k instead would count every keyframe's error again in all later
+   frames. R(t) is integrated by diffrax through Euler's equations and the quaternion
+   kinematics (forward-mode differentiable).
+   *The keyframes' shared error.* Every frame registered against one keyframe inherits that
+   keyframe's own range noise, so their errors move together. Two more fits
+   (`SHARED_ROUNDS`) estimate the ratio ρ of that shared variance to each frame's own from
+   the last fit's residuals (`shared_variance_ratio`) and whiten each keyframe's residuals
+   by the inverse square root of I + ρ 11ᵀ (`decorrelated`: generalised least squares).
 3. *Centre of mass, linear.* A point that the body turns about moves on a straight line,
    c + v t, so each motion j → k maps c + t_j v to c + t_k v:
-   t_jk = (I − R_jk) c + (t_k I − t_j R_jk) v, linear in (c, v), solved by least squares.
+   t_jk = (I − R_jk) c + (t_k I − t_j R_jk) v, linear in (c, v), solved by least squares,
+   then again on rows decorrelated for the keyframes' shared error in the same way.
 
 **Uncertainty and observability.** Each block's covariance is σ̂² (JᵀJ)⁻¹ at the solution,
-with σ̂² the whitened residuals' variance (1 when the measurement covariances are right),
-times a design effect: the frames registered against one keyframe share that keyframe's
-noise, so their residuals move together and count as fewer independent ones. The
+with σ̂² the whitened, decorrelated residuals' variance (1 when the measurement covariances
+are right), times a design effect: whatever of a keyframe's shared noise the decorrelation
+left makes its frames' residuals move together, so they count as fewer independent ones. The
 eigenvalues of JᵀJ are floored, so that a direction the data leave free gets a huge
 variance, not none. A spin about a principal axis leaves the ratios unobservable: the body
 rate's direction does not move. `observable` is False when the fitted body rate's direction
@@ -58,6 +68,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from .._tree import tree_select
 from ._track import Track
 
 RATE_WINDOW_S = 0.5
@@ -91,12 +102,67 @@ INFORMATION_FLOOR = 1e-12
 """Least eigenvalue of the information JᵀJ, relative to its largest, in the covariances: a
 direction the data do not constrain gets a huge variance, never zero."""
 
+SHARED_ROUNDS = 2
+"""Refits after the first least-squares fit, each with the keyframes' shared error estimated
+from the last fit's residuals (`shared_variance_ratio`, `decorrelated`); 0 fits once with
+the registrations taken as independent."""
+
+START_WINDOWS = (1, 2, 4)
+"""Multiples of the rate window whose linear starts (`linear_start`) are each fitted; the
+fit with the least cost is kept. Least squares through Euler's equations has local minima,
+and which start lands in the right one depends on the registrations' noise: on simulated
+tumbles with 0.1–0.3° of noise per registration, a single start ended in fits 2–22 times
+costlier than the truth (`docs/tracking.md`)."""
+
 RESIDUAL_UNIT = 1e-3
 """Rotation residuals are scaled to milliradians inside the least squares (conditioning)."""
 
 
+def _float_array(x) -> Array:
+    """`x` as an array of JAX's default float type, never weakly typed, so that every Orbit
+    of one precision shares a compiled program."""
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+class Orbit(eqx.Module):
+    """How the camera frame turns relative to an inertial frame, and the gravity gradient.
+
+    A chaser that holds its camera fixed in the orbital frame o of a circular orbit (z_o
+    radially outward, x_o along the track, y_o the orbit normal; o turns about +y_o at the
+    mean motion n relative to the inertial frame that coincides with o at t = 0) sees the
+    target turn by the orbit as well, and the target feels the gravity-gradient torque
+    3n² e × J e, with e the local vertical in body axes. `rate` = 0: a camera that holds an
+    inertial attitude, and no torque.
+
+    **Fields:** `rate` n (rad/s); `camera_from_orbit` C (3, 3), whose rows are the camera's
+    axes in frame o (`jaxpose.sim.C_FROM_O` for the simulator's chaser).
+    """
+
+    rate: Float[Array, ""] = eqx.field(converter=_float_array)
+    camera_from_orbit: Float[Array, "3 3"] = eqx.field(converter=_float_array)
+
+    @classmethod
+    def inertial(cls, dtype=None) -> Orbit:
+        """A camera that holds an inertial attitude: no orbit, no torque."""
+        return cls(jnp.zeros((), dtype), jnp.eye(3, dtype=dtype))
+
+    def camera_turn(self, times: Float[Array, " T"]) -> Float[Array, "T 3 3"]:
+        """Q(t) = C R_y(nt)ᵀ Cᵀ: maps vectors in frame c at t = 0 to frame c at each time."""
+        c, s = jnp.cos(self.rate * times), jnp.sin(self.rate * times)
+        zero, one = jnp.zeros_like(times), jnp.ones_like(times)
+        o_from_i = jnp.stack(
+            [jnp.stack([c, zero, -s], -1), jnp.stack([zero, one, zero], -1), jnp.stack([s, zero, c], -1)], -2
+        )
+        return jnp.einsum("ij,tjk,lk->til", self.camera_from_orbit, o_from_i, self.camera_from_orbit)
+
+    def vertical(self, t: Float[Array, ""]) -> Float[Array, "3"]:
+        """The local vertical (radially outward) at time t, in frame c at t = 0."""
+        up = jnp.stack([jnp.sin(self.rate * t), jnp.zeros_like(t), jnp.cos(self.rate * t)])
+        return self.camera_from_orbit @ up
+
+
 class Dynamics(eqx.Module):
-    """A tumbling target's identified dynamics (torque-free; camera frame c taken as inertial).
+    """A tumbling target's identified dynamics.
 
     **Fields** (frame c at the first frame's time t = 0):
 
@@ -104,7 +170,8 @@ class Dynamics(eqx.Module):
     - `principal_axes`: (3, 3); column i is the axis of J_i (a rotation matrix).
     - `centre`: the centre of mass (m).
     - `velocity`: the centre of mass's velocity (m/s).
-    - `omega`: the angular velocity at t = 0 (rad/s).
+    - `omega`: the angular velocity at t = 0 (rad/s), inertial: with an orbiting camera
+      (`orbit`), the target's turn less the camera's own is what the camera sees.
     - `covariance`: (14, 14) over (δaxes (3, rad, a rotation vector on the left of
       `principal_axes`), ratios (2), omega (3, rad/s), centre (3, m), velocity (3, m/s)). The
       attitude block and the centre block are fitted separately, so their cross terms are
@@ -115,6 +182,8 @@ class Dynamics(eqx.Module):
     - `centre_rms`: RMS of the fitted translation residuals (m).
     - `result`: the Levenberg–Marquardt fit's `optx.RESULTS`.
     - `frames`: frames used (successful registrations).
+    - `orbit`: the camera's [`Orbit`][jaxpose.Orbit] the fit assumed (None: a camera that
+      holds an inertial attitude, torque-free).
     """
 
     inertia_ratios: Float[Array, "2"]
@@ -129,6 +198,7 @@ class Dynamics(eqx.Module):
     centre_rms: Float[Array, ""]
     result: optx.RESULTS
     frames: Int[Array, ""]
+    orbit: Orbit | None = None
 
     @property
     def moments(self) -> Float[Array, "3"]:
@@ -142,7 +212,7 @@ class Dynamics(eqx.Module):
         **Returns:** rotations (T, 3, 3) and translations (T, 3) (m).
         """
         times = jnp.asarray(times, self.omega.dtype)
-        R = motion_rotations(self.principal_axes, self.moments, self.omega, times)
+        R = motion_rotations(self.principal_axes, self.moments, self.omega, times, self.orbit)
         t = self.centre[None] + times[:, None] * self.velocity[None] - R @ self.centre
         return R, t
 
@@ -160,7 +230,7 @@ class Dynamics(eqx.Module):
         def path(theta):
             axes = jaxlie.SO3.exp(theta[:3]).as_matrix() @ self.principal_axes
             moments = jnp.concatenate([theta[3:5], jnp.ones(1, theta.dtype)])
-            R = motion_rotations(axes, moments, theta[5:8], times)
+            R = motion_rotations(axes, moments, theta[5:8], times, self.orbit)
             centre, velocity = theta[8:11], theta[11:14]
             return R @ (point - centre) + centre[None] + times[:, None] * velocity[None]
 
@@ -173,28 +243,39 @@ class Dynamics(eqx.Module):
         return positions, jnp.sqrt(jnp.maximum(var, 0.0))
 
 
-def euler_rhs(t, state: Float[Array, "7"], moments: Float[Array, "3"]) -> Float[Array, "7"]:
-    """Torque-free Euler's equations in principal axes and the quaternion kinematics
-    q̇ = ½ q ⊗ (0, ω). state = (q (4, wxyz, body b → frame c), ω (3, rad/s, frame b))."""
+def euler_rhs(t, state: Float[Array, "7"], args) -> Float[Array, "7"]:
+    """Euler's equations in principal axes with the gravity-gradient torque, and the
+    quaternion kinematics q̇ = ½ q ⊗ (0, ω). state = (q (4, wxyz, body b → frame c at t = 0),
+    ω (3, rad/s, frame b, inertial)); args = (moments (J1, J2, J3) up to scale, `Orbit`)."""
+    moments, orbit = args
     q, w = state[:4], state[4:]
-    w_dot = -jnp.cross(w, moments * w) / moments
+    vertical = jaxlie.SO3(wxyz=q).inverse().apply(orbit.vertical(t))
+    torque = 3 * orbit.rate**2 * jnp.cross(vertical, moments * vertical)
+    w_dot = (torque - jnp.cross(w, moments * w)) / moments
     pure = jnp.concatenate([jnp.zeros(1, w.dtype), w])
     q_dot = 0.5 * (jaxlie.SO3(wxyz=q) @ jaxlie.SO3(wxyz=pure)).wxyz
     return jnp.concatenate([q_dot, w_dot])
 
 
 def motion_rotations(
-    axes: Float[Array, "3 3"], moments: Float[Array, "3"], omega: Float[Array, "3"], times: Float[Array, " T"]
+    axes: Float[Array, "3 3"],
+    moments: Float[Array, "3"],
+    omega: Float[Array, "3"],
+    times: Float[Array, " T"],
+    orbit: Orbit | None = None,
 ) -> Float[Array, "T 3 3"]:
-    """R(t) = A(t) Pᵀ at `times` (s ≥ 0, ascending) for principal axes P = `axes` (frame c),
-    moments (J1, J2, J3) up to scale and the rate `omega` at t = 0 (rad/s, frame c).
-    diffrax (Tsit5, adaptive), forward-mode differentiable."""
-    return _integrate(axes, moments, omega, times)[0]
+    """R(t) = Q(t) A(t) Pᵀ at `times` (s ≥ 0, ascending) for principal axes P = `axes`
+    (frame c at t = 0), moments (J1, J2, J3) up to scale and the inertial angular velocity
+    `omega` at t = 0 (rad/s, frame c at t = 0); A(t) is the body's attitude in frame c at
+    t = 0 and Q(t) the camera's turn (`Orbit.camera_turn`; the identity for None, an inertial
+    camera). diffrax (Tsit5, adaptive), forward-mode differentiable."""
+    return _integrate(axes, moments, omega, times, orbit)[0]
 
 
-def _integrate(axes, moments, omega, times) -> tuple[Float[Array, "T 3 3"], Float[Array, "T 3"]]:
+def _integrate(axes, moments, omega, times, orbit=None) -> tuple[Float[Array, "T 3 3"], Float[Array, "T 3"]]:
     """`motion_rotations` and the body rates ω(t) (rad/s, principal axes) at `times`."""
     dtype = omega.dtype
+    orbit = Orbit.inertial() if orbit is None else orbit
     tol = 100 * float(jnp.finfo(dtype).eps)
     q0 = jaxlie.SO3.from_matrix(axes).wxyz
     y0 = jnp.concatenate([q0, axes.T @ omega])
@@ -206,7 +287,7 @@ def _integrate(axes, moments, omega, times) -> tuple[Float[Array, "T 3 3"], Floa
         t1=t1,
         dt0=None,
         y0=y0,
-        args=moments,
+        args=(moments, orbit),
         saveat=diffrax.SaveAt(ts=times),
         stepsize_controller=diffrax.PIDController(rtol=tol, atol=tol),
         adjoint=diffrax.ForwardMode(),
@@ -220,7 +301,8 @@ def _integrate(axes, moments, omega, times) -> tuple[Float[Array, "T 3 3"], Floa
     q = q / jnp.linalg.norm(q, axis=1, keepdims=True)
     A = jax.vmap(lambda qk: jaxlie.SO3(wxyz=qk).as_matrix())(q)
     rates = jnp.where(solved, sol.ys[:, 4:], (axes.T @ omega)[None])
-    return jnp.where(solved, A @ axes.T, jnp.eye(3, dtype=dtype)[None]), rates
+    R = jnp.einsum("tij,tjk,lk->til", orbit.camera_turn(times), A, axes)
+    return jnp.where(solved, R, jnp.eye(3, dtype=dtype)[None]), rates
 
 
 def body_rates(
@@ -296,10 +378,10 @@ def _rotation_residuals(theta, data):
     θ = (δaxes (3), log moment factors (2), ω (3)) about the base axes and moments. Each
     residual is the left rotation vector of R_meas R_modelᵀ, divided by its standard deviation
     (`whiten`: the inverse Cholesky factors of the rotation covariances, or 1 / `RESIDUAL_UNIT`)."""
-    times, rotations, used, references, whiten, base_axes, base_moments = data
+    times, rotations, used, references, whiten, base_axes, base_moments, orbit = data
     axes = jaxlie.SO3.exp(theta[:3]).as_matrix() @ base_axes
     moments = _moments(base_moments, theta[3:5])
-    R = motion_rotations(axes, moments, theta[5:8], times)
+    R = motion_rotations(axes, moments, theta[5:8], times, orbit)
     model = jnp.einsum("tij,tkj->tik", R, R[references])
     measured = jnp.einsum("tij,tkj->tik", rotations, rotations[references])
     rel = jnp.einsum("tij,tkj->tik", measured, model)
@@ -319,25 +401,45 @@ def _design_effect(residuals: Float[Array, "T 3"], used: Bool[Array, " T"], refe
     return jnp.maximum(jnp.sum(sums**2) / jnp.maximum(total, jnp.finfo(r.dtype).tiny), 1.0)
 
 
-def _attitude_covariance(data, axes, moments, omega):
+def _decorrelated_residuals(theta, args):
+    """`_rotation_residuals` whitened for the keyframes' shared error: args = (data, ρ)."""
+    data, ratio = args
+    _, _, used, references, *_ = data
+    return decorrelated(_rotation_residuals(theta, data), used, references, ratio)
+
+
+def _attitude_covariance(data, axes, moments, omega, ratio):
     """Covariance over (δaxes (3), ratios (2), ω (3)) at the sorted solution: σ̂² (JᵀJ)⁻¹ over
-    the whitened residuals (σ̂² their variance: 1 when the measurement covariances are right),
-    times the residuals' `_design_effect`; and the RMS of the unwhitened rotation residuals
-    (rad)."""
-    times, rotations, used, references, whiten, _, _ = data
+    the whitened residuals decorrelated with the shared-error ratio `ratio` (σ̂² their
+    variance: 1 when the measurement covariances are right), times the residuals'
+    `_design_effect`; and the RMS of the unwhitened rotation residuals (rad)."""
+    times, rotations, used, references, whiten, _, _, orbit = data
 
     def residuals(phi, weights):
         full = jnp.concatenate([phi[3:5], jnp.ones(1, phi.dtype)])
         base = jaxlie.SO3.exp(phi[:3]).as_matrix() @ axes
         theta = jnp.concatenate([jnp.zeros(5, phi.dtype), phi[5:8]])
-        return _rotation_residuals(theta, (times, rotations, used, references, weights, base, full)).reshape(-1)
+        residuals = _rotation_residuals(theta, (times, rotations, used, references, weights, base, full, orbit))
+        return decorrelated(residuals, used, references, ratio).reshape(-1)
 
     phi = jnp.concatenate([jnp.zeros(3, omega.dtype), moments[:2], omega])
     r = residuals(phi, whiten)
     jac = jax.jacfwd(residuals)(phi, whiten)
     n = 3 * jnp.sum(used)
     variance = jnp.sum(r**2) / jnp.maximum(n - 8, 1) * _design_effect(r.reshape(-1, 3), used, references)
-    raw = residuals(phi, jnp.broadcast_to(jnp.eye(3, dtype=omega.dtype), whiten.shape))
+    raw = _rotation_residuals(
+        jnp.concatenate([jnp.zeros(5, omega.dtype), omega]),
+        (
+            times,
+            rotations,
+            used,
+            references,
+            jnp.broadcast_to(jnp.eye(3, dtype=omega.dtype), whiten.shape),
+            axes,
+            moments,
+            orbit,
+        ),
+    )
     return variance * _inverse_information(jac.T @ jac), jnp.sqrt(jnp.sum(raw**2) / jnp.maximum(n, 1))
 
 
@@ -358,23 +460,39 @@ def fit_centre(
     translations: Float[Array, "T 3"],
     used: Bool[Array, " T"],
     references: Int[Array, " T"],
+    shared_rounds: int = SHARED_ROUNDS,
 ) -> tuple[Float[Array, "6"], Float[Array, "6 6"], Float[Array, ""]]:
     """(c, v) by least squares over the measured motions keyframe j → k (step 3): the centre
     moves from c + t_j v to c + t_k v, so t_jk = (I − R_jk) c + (t_k I − t_j R_jk) v. Also its
-    covariance σ̂² (AᵀA)⁻¹ times the residuals' `_design_effect`, and their RMS (m)."""
+    covariance σ̂² (AᵀA)⁻¹ times the residuals' `_design_effect`, and their RMS (m).
+    After a first solve, `shared_rounds` solves on rows decorrelated for the keyframes'
+    shared error (`shared_variance_ratio` of the last residuals, `decorrelated`), as in the
+    rotation fit."""
     eye = jnp.eye(3, dtype=rotations.dtype)
     R_rel = jnp.einsum("tij,tkj->tik", rotations, rotations[references])
     t_rel = translations - jnp.einsum("tij,tj->ti", R_rel, translations[references])
     t_ref = times[references]
     A = jnp.concatenate([eye[None] - R_rel, times[:, None, None] * eye[None] - t_ref[:, None, None] * R_rel], axis=2)
     w = used.astype(A.dtype)[:, None, None]
-    A, b = (A * w).reshape(-1, 6), (t_rel[:, :, None] * w).reshape(-1)
-    normal = _inverse_information(A.T @ A)
-    x = jnp.linalg.lstsq(A, b)[0]
-    r = A @ x - b
+    A, b = A * w, t_rel * w[:, :, 0]
+
+    def solve(ratio):
+        """Least squares on the rows decorrelated for the keyframes' shared error ρ."""
+        A_d = jax.vmap(lambda col: decorrelated(col, used, references, ratio), in_axes=2, out_axes=2)(A)
+        A_d, b_d = A_d.reshape(-1, 6), decorrelated(b, used, references, ratio).reshape(-1)
+        x = jnp.linalg.lstsq(A_d, b_d)[0]
+        return x, A_d, A_d @ x - b_d
+
+    x, _, r = solve(jnp.zeros((), A.dtype))
+    for _ in range(shared_rounds):
+        x, A_d, r = solve(
+            shared_variance_ratio((A.reshape(-1, 6) @ x - b.reshape(-1)).reshape(-1, 3), used, references)
+        )
+    A_d = A.reshape(-1, 6) if shared_rounds == 0 else A_d
     n = 3 * jnp.sum(used)
     variance = jnp.sum(r**2) / jnp.maximum(n - 6, 1) * _design_effect(r.reshape(-1, 3), used, references)
-    return x, variance * normal, jnp.sqrt(jnp.sum(r**2) / jnp.maximum(n, 1))
+    raw = A.reshape(-1, 6) @ x - b.reshape(-1)
+    return x, variance * _inverse_information(A_d.T @ A_d), jnp.sqrt(jnp.sum(raw**2) / jnp.maximum(n, 1))
 
 
 def _whitening(rotation_cov: Float[Array, "T 3 3"], used: Bool[Array, " T"]) -> Float[Array, "T 3 3"]:
@@ -389,6 +507,48 @@ def _whitening(rotation_cov: Float[Array, "T 3 3"], used: Bool[Array, " T"]) -> 
     return jnp.where(ok[:, None, None], inverse, eye[None] / RESIDUAL_UNIT)
 
 
+def _group_means(residuals: Float[Array, "T 3"], used: Bool[Array, " T"], references: Int[Array, " T"]):
+    """Per frame: the mean residual of its keyframe's used frames, and their count."""
+    r = residuals * used[:, None]
+    sums = jax.ops.segment_sum(r, references, num_segments=r.shape[0])
+    counts = jax.ops.segment_sum(used.astype(r.dtype), references, num_segments=r.shape[0])
+    means = sums / jnp.maximum(counts, 1.0)[:, None]
+    return means[references], counts[references]
+
+
+def shared_variance_ratio(
+    residuals: Float[Array, "T 3"], used: Bool[Array, " T"], references: Int[Array, " T"]
+) -> Float[Array, ""]:
+    """ρ = σ_s² / σ_w²: the variance of the error that all frames registered against one
+    keyframe share (σ_s²) over that of each frame's own error (σ_w²), by moments of a fit's
+    residuals. σ_w² is the spread about each keyframe's mean; a keyframe's mean residual has
+    variance σ_s² + σ_w² / n for its n frames. ρ ≥ 0."""
+    means, counts = _group_means(residuals, used, references)
+    n_used = jnp.sum(used)
+    n_groups = jnp.sum(jnp.where(used, 1.0 / jnp.maximum(counts, 1.0), 0.0))
+    within = jnp.sum(((residuals - means) ** 2) * used[:, None]) / jnp.maximum(3 * (n_used - n_groups), 1.0)
+    # Σ over keyframes of (|mean|²/3 − σ_w²/n), each keyframe counted once (its frames 1/n each).
+    per_frame = (jnp.sum(means**2, axis=1) / 3 - within / jnp.maximum(counts, 1.0)) / jnp.maximum(counts, 1.0)
+    shared = jnp.sum(jnp.where(used, per_frame, 0.0)) / jnp.maximum(n_groups, 1.0)
+    return jnp.maximum(shared, 0.0) / jnp.maximum(within, jnp.finfo(residuals.dtype).tiny)
+
+
+def decorrelated(
+    residuals: Float[Array, "T 3"], used: Bool[Array, " T"], references: Int[Array, " T"], ratio: Float[Array, ""]
+) -> Float[Array, "T 3"]:
+    """The residuals whitened for a keyframe's shared error: within each keyframe's n frames
+    the covariance is σ_w² (I + ρ 11ᵀ), whose inverse square root (up to 1/σ_w) is
+    I − (c/n) 11ᵀ with c = 1 − 1/√(1 + nρ): each residual minus c times its keyframe's mean.
+
+    Why: a keyframe's own range noise moves every registration against it the same way (on
+    the tracked tumbles of `experiments/identify.py` that part was as large as each frame's
+    own). Counted as independent, those frames pull the fit towards the keyframe's error;
+    decorrelated, a keyframe's frames count for its motion's shape, not n times its offset."""
+    means, counts = _group_means(residuals, used, references)
+    c = 1.0 - 1.0 / jnp.sqrt(1.0 + counts * ratio)
+    return jnp.where(used[:, None], residuals - c[:, None] * means, 0.0)
+
+
 def _excitation(rates, ok):
     """Largest angle (rad) between a body rate's direction and their mean direction (the
     fitted model's rates: measured ones scatter with the noise)."""
@@ -399,7 +559,21 @@ def _excitation(rates, ok):
     return jnp.max(jnp.where(ok, angles, 0.0))
 
 
-@eqx.filter_jit
+def start_windows(rate_window: int, frames: int) -> tuple[int, ...]:
+    """The distinct half-widths (frames) of `START_WINDOWS` × `rate_window` that fit in
+    `frames` (each needs 2h + 3 frames)."""
+    widest = max(1, (frames - 3) // 2)
+    return tuple(sorted({min(m * rate_window, widest) for m in START_WINDOWS}))
+
+
+def linear_start(times, rotations, valid, half: int):
+    """(axes, moments, ω at the first valid rate) from centred differences over ±`half`
+    frames and conservation of momentum and energy (step 1 of the module's notes)."""
+    rates, ok = body_rates(times, rotations, valid, half)
+    axes, moments = initial_inertia(rotations, rates, ok)
+    return axes, moments, rates[jnp.argmax(ok)]
+
+
 def identify_motion(
     times: Float[Array, " T"],
     rotations: Float[Array, "T 3 3"],
@@ -409,6 +583,8 @@ def identify_motion(
     rotation_cov: Float[Array, "T 3 3"] | None = None,
     rate_window: int = 5,
     max_steps: int = 200,
+    shared_rounds: int = SHARED_ROUNDS,
+    orbit: Orbit | None = None,
 ) -> Dynamics:
     """Identify the dynamics from measured motions (the core of [`identify`][jaxpose.identify]).
 
@@ -425,9 +601,24 @@ def identify_motion(
       rotations, to weight the residuals (default: equal weights).
     - `rate_window`: ±frames of the centred differences of step 1 (static).
     - `max_steps`: Levenberg–Marquardt's step limit (static).
+    - `shared_rounds`: refits for the keyframes' shared error after the first fit (static).
+    - `orbit`: how the camera turns and the gravity gradient ([`Orbit`][jaxpose.Orbit]);
+      None: a camera that holds an inertial attitude, torque-free.
 
     Pure and jittable; no checks (see `identify`).
     """
+    orbit = Orbit.inertial() if orbit is None else orbit
+    return _identify_motion(
+        times, rotations, translations, valid, references, rotation_cov, rate_window, max_steps, shared_rounds, orbit
+    )
+
+
+@eqx.filter_jit
+def _identify_motion(
+    times, rotations, translations, valid, references, rotation_cov, rate_window, max_steps, shared_rounds, orbit
+) -> Dynamics:
+    """`identify_motion` with the orbit given (an inertial camera is `Orbit.inertial()`), so
+    that both kinds of camera share one compiled program."""
     T = times.shape[0]
     references = jnp.zeros(T, jnp.int32) if references is None else references
     used = valid & valid[references] & (references != jnp.arange(T))
@@ -436,24 +627,61 @@ def identify_motion(
         whiten = jnp.broadcast_to(eye / RESIDUAL_UNIT, (T, 3, 3))
     else:
         whiten = _whitening(rotation_cov, used)
-    rates, ok = body_rates(times, rotations, valid, rate_window)
-    axes0, moments0 = initial_inertia(rotations, rates, ok)
-    omega0 = rates[jnp.argmax(ok)]
-    data = (times, rotations, used, references, whiten, axes0, moments0)
     tol = math.sqrt(float(jnp.finfo(times.dtype).eps))
     solver = optx.LevenbergMarquardt(rtol=tol, atol=tol)
-    theta0 = jnp.concatenate([jnp.zeros(5, times.dtype), omega0])
-    sol = optx.least_squares(
-        _rotation_residuals, solver, theta0, data, max_steps=max_steps, throw=False, options={"jac": "fwd"}
+
+    def solve(theta, data, ratio):
+        return optx.least_squares(
+            _decorrelated_residuals,
+            solver,
+            theta,
+            (data, ratio),
+            max_steps=max_steps,
+            throw=False,
+            options={"jac": "fwd"},
+        )
+
+    # The linear starts take the motions in frame c at t = 0 (the camera's own turn undone).
+    inertial = jnp.einsum("tji,tjk->tik", orbit.camera_turn(times), rotations)
+    starts = [linear_start(times, inertial, valid, h) for h in start_windows(rate_window, T)]
+    axes_s, moments_s, omega_s = (jnp.stack(part) for part in zip(*starts, strict=True))
+    n_starts = len(starts)
+
+    def one_fit(carry, index):
+        """Round `index` < n_starts: a fit from that start, the registrations independent,
+        kept when it costs less than the best so far. Later rounds: a refit of the kept one
+        for the keyframes' shared error. One least-squares program serves every round."""
+        theta, axes0, moments0, cost, _, _ = carry
+        first = index < n_starts
+        k = jnp.minimum(index, n_starts - 1)
+        base_axes, base_moments = jnp.where(first, axes_s[k], axes0), jnp.where(first, moments_s[k], moments0)
+        data = (times, rotations, used, references, whiten, base_axes, base_moments, orbit)
+        ratio = shared_variance_ratio(_rotation_residuals(theta, data), used, references)
+        ratio = jnp.where(first, jnp.zeros_like(ratio), ratio)
+        start = jnp.where(first, jnp.concatenate([jnp.zeros(5, times.dtype), omega_s[k]]), theta)
+        sol = solve(start, data, ratio)
+        new_cost = jnp.sum(_rotation_residuals(sol.value, data) ** 2)
+        new_cost = jnp.where(jnp.isfinite(new_cost), new_cost, jnp.inf)
+        new = (sol.value, base_axes, base_moments, new_cost, sol.result, ratio)
+        return tree_select(~first | (new_cost < cost), new, carry), None
+
+    initial = (
+        jnp.concatenate([jnp.zeros(5, times.dtype), omega_s[0]]),
+        axes_s[0],
+        moments_s[0],
+        jnp.asarray(jnp.inf, times.dtype),
+        optx.RESULTS.successful,
+        jnp.zeros((), times.dtype),
     )
-    theta = sol.value
+    (theta, axes0, moments0, _, result, ratio), _ = jax.lax.scan(one_fit, initial, jnp.arange(n_starts + shared_rounds))
+    data = (times, rotations, used, references, whiten, axes0, moments0, orbit)
     axes = jaxlie.SO3.exp(theta[:3]).as_matrix() @ axes0
     axes, moments = _sorted(axes, _moments(moments0, theta[3:5]))
     omega = theta[5:8]
-    cov_attitude, rotation_rms = _attitude_covariance(data, axes, moments, omega)
-    centre, cov_centre, centre_rms = fit_centre(times, rotations, translations, used, references)
+    cov_attitude, rotation_rms = _attitude_covariance(data, axes, moments, omega, ratio)
+    centre, cov_centre, centre_rms = fit_centre(times, rotations, translations, used, references, shared_rounds)
     covariance = jax.scipy.linalg.block_diag(cov_attitude, cov_centre)
-    excitation = _excitation(_integrate(axes, moments, omega, times)[1], used)
+    excitation = _excitation(_integrate(axes, moments, omega, times, orbit)[1], used)
     ratio_std = jnp.sqrt(jnp.maximum(jnp.diag(cov_attitude)[3:5], 0.0)) / moments[:2]
     finite = jnp.all(jnp.isfinite(covariance)) & jnp.all(jnp.isfinite(theta))
     physical = jnp.sum(moments[:2]) >= 1 - TRIANGLE_TOL
@@ -469,13 +697,19 @@ def identify_motion(
         excitation=excitation,
         rotation_rms=rotation_rms,
         centre_rms=centre_rms,
-        result=sol.result,
+        result=result,
         frames=jnp.sum(used),
+        orbit=orbit,
     )
 
 
 def identify(
-    track: Track, dt: float, weighted: bool = True, rate_window_s: float = RATE_WINDOW_S, max_steps: int = 200
+    track: Track,
+    dt: float,
+    weighted: bool = True,
+    rate_window_s: float = RATE_WINDOW_S,
+    max_steps: int = 200,
+    orbit: Orbit | None = None,
 ) -> Dynamics:
     """Identify a tumbling target's dynamics from a [`jaxpose.track`][] result.
 
@@ -488,23 +722,55 @@ def identify(
       False: equal weights.
     - `rate_window_s`: half-width (s) of the centred differences that start the fit.
     - `max_steps`: Levenberg–Marquardt's step limit.
+    - `orbit`: for a camera fixed in the orbital frame of a circular orbit, its
+      [`Orbit`][jaxpose.Orbit] (mean motion and axes): the fit then undoes the camera's
+      turn and adds the gravity-gradient torque. None: a camera that holds an inertial
+      attitude (a chaser holding its attitude), the target free of torque.
 
-    **Returns:** a [`Dynamics`][jaxpose.Dynamics] in frame c at the first frame's time. The camera is
-    taken as inertial over the window (a chaser holding its attitude) and the target free of
-    torque.
+    **Returns:** a [`Dynamics`][jaxpose.Dynamics] in frame c at the first frame's time.
 
     Raises `ValueError` for a `dt` that is not a positive number, for fewer than
     `MIN_FRAMES` successful frames, or for a window too short for the rate differences.
     """
     if not isinstance(track, Track):
         raise ValueError(f"identify needs the Track that jp.track returns, got {type(track).__name__}.")
+    return identify_tracked(
+        track.rotations,
+        track.points,
+        track.registered(),
+        track.keyframes,
+        track.measurement_cov if weighted else None,
+        dt,
+        rate_window_s,
+        max_steps,
+        orbit=orbit,
+    )
+
+
+def identify_tracked(
+    rotations: Float[ArrayLike, "T 3 3"],
+    points: Float[ArrayLike, "T 3"],
+    registered: Bool[ArrayLike, " T"],
+    keyframes: Int[ArrayLike, " T"],
+    measurement_cov: Float[ArrayLike, "T 6 6"] | None,
+    dt: float,
+    rate_window_s: float = RATE_WINDOW_S,
+    max_steps: int = 200,
+    shared_rounds: int = SHARED_ROUNDS,
+    orbit: Orbit | None = None,
+) -> Dynamics:
+    """[`identify`][jaxpose.identify] on a track's arrays (`Track.rotations`, `.points`,
+    `.registered()`, `.keyframes`, `.measurement_cov` or None for equal weights), so that a
+    saved track can be identified again. Checks its input as `identify` does;
+    `shared_rounds` and `orbit` as in `identify_motion`."""
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive number of seconds, got {dt!r}.")
-    rotations = jnp.asarray(track.rotations)
+    rotations = jnp.asarray(rotations)
+    points = jnp.asarray(points, rotations.dtype)
     T = rotations.shape[0]
-    translations = track.points - jnp.einsum("tij,j->ti", rotations, track.points[0])
+    translations = points - jnp.einsum("tij,j->ti", rotations, points[0])
     finite = jnp.all(jnp.isfinite(rotations), axis=(1, 2)) & jnp.all(jnp.isfinite(translations), axis=1)
-    valid = track.registered() & finite
+    valid = jnp.asarray(registered, bool) & finite
     count = int(jnp.sum(valid))
     if count < MIN_FRAMES:
         raise ValueError(f"identify needs at least {MIN_FRAMES} successfully registered frames, got {count}.")
@@ -517,9 +783,20 @@ def identify(
     times = jnp.arange(T, dtype=rotations.dtype) * jnp.asarray(dt, rotations.dtype)
     translations = jnp.where(finite[:, None], translations, 0.0)
     rotations = jnp.where(finite[:, None, None], rotations, jnp.eye(3, dtype=rotations.dtype)[None])
-    rotation_cov = jnp.asarray(track.measurement_cov)[:, :3, :3] if weighted else None
-    references = jnp.asarray(track.keyframes, jnp.int32)
-    return identify_motion(times, rotations, translations, valid, references, rotation_cov, half, max_steps)
+    rotation_cov = None if measurement_cov is None else jnp.asarray(measurement_cov, rotations.dtype)[:, :3, :3]
+    references = jnp.asarray(keyframes, jnp.int32)
+    return identify_motion(
+        times, rotations, translations, valid, references, rotation_cov, half, max_steps, shared_rounds, orbit
+    )
 
 
-__all__ = ["MIN_EXCITATION", "MAX_RATIO_REL_STD", "Dynamics", "identify", "identify_motion", "motion_rotations"]
+__all__ = [
+    "MIN_EXCITATION",
+    "MAX_RATIO_REL_STD",
+    "Dynamics",
+    "Orbit",
+    "identify",
+    "identify_motion",
+    "identify_tracked",
+    "motion_rotations",
+]
