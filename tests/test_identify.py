@@ -178,6 +178,7 @@ def test_the_orbits_camera_turn_is_the_simulators():
     assert float(jp.rotation_angle(R[-1], jnp.eye(3))) > 1.0  # 20 minutes of orbit: a real turn
 
 
+@pytest.mark.slow  # ≈ 30 s on a clean clone; the camera's turn is checked in the default run
 def test_an_orbiting_camera_and_the_gravity_gradient_are_identified():
     """Exact measurements from the simulator's chaser fixed in the orbital frame, with the
     gravity-gradient torque: `identify_motion` with the orbit recovers the dynamics; taking the
