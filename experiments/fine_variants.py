@@ -1,13 +1,15 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
 `uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
-[--set anchors|cost|gates] [--seed 0]`
+[--set anchors|cost|gates|edges] [--seed 0]`
 
 `--set anchors` (the default): the planes' anchor, the noise-free polish and the within-the-noise
 stop. `--set cost`: what the stage's cost settings (`FineStage.points`, `steps`, `rounds`,
 `neighbours`) buy in accuracy (docs, Findings: what the fine stage's cost buys). `--set gates`:
 the inlier gate, the robust scale and the planar fraction (docs, Findings: the fine stage's
-gates on two draws of pairs). `--seed` draws other pairs than the benchmark's (seed 0).
+gates on two draws of pairs). `--set edges`: the planar fraction, whether the previous points
+at edges and corners keep their planes (docs, Findings: planes at edges and corners). `--seed`
+draws other pairs than the benchmark's (seed 0).
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
 one compiled program per variant (capacities sized once for all pairs, so times are those of
@@ -94,7 +96,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--levels", default="0,0.5,1,2")
-    parser.add_argument("--set", default="anchors", choices=("anchors", "cost", "gates"))
+    parser.add_argument("--set", default="anchors", choices=("anchors", "cost", "gates", "edges"))
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     levels = tuple(float(x) for x in args.levels.split(","))
@@ -123,6 +125,15 @@ def main():
                 for name, value in settings
             ),
             ("ROBUST_SCALE = 10", default, {"ROBUST_SCALE": 10.0}),
+        ]
+    if args.set == "edges":
+        variants = [
+            (
+                f"FineStage(planar_fraction={value})",
+                dataclasses.replace(default, fine=fine_with(default, "planar_fraction", value)),
+                {},
+            )
+            for value in (1.0, 0.85, 0.7)
         ]
     for name, config, constants in variants:
         saved = {k: getattr(_fine, k) for k in constants}

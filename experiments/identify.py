@@ -210,7 +210,7 @@ def refit(**options) -> list[dict]:
     return rows
 
 
-def main(duration: float = 30.0, rate_hz: float = 10.0, horizon: float = 10.0, cases=CASES, name="identify"):
+def main(duration: float = 60.0, rate_hz: float = 25.0, horizon: float = 10.0, cases=CASES, name="identify"):
     results = [one_case(case, i, duration, rate_hz, horizon) for i, case in enumerate(cases)]
     rows = [row for row, _ in results]
     np.savez_compressed(

@@ -260,8 +260,14 @@ class FineStage(eqx.Module):
       the whole surface).
     - `inlier`: current points farther than this from every previous point are left out
       (metres): surface seen in only one cloud.
-    - `planar_fraction`: fraction of the previous points kept, the most planar ones
-      (smallest / middle scatter eigenvalue of the neighbourhood): edges and corners go.
+    - `planar_fraction`: fraction of the previous points that keep their plane, the most
+      planar ones (smallest / middle scatter eigenvalue of the neighbourhood); a current
+      point matched to a point without one is left out. 1 (the default): every
+      neighbourhood with a defined plane, edges and corners included: there the plane of
+      least scatter still holds the slides along the faces that the faces alone leave
+      weak, and under range noise the planarity rank is mostly noise, so a fraction below
+      1 drops points at random. `Config.paper()` keeps 0.7 (docs, Findings: planes at edges
+      and corners).
     - `guard`: the fine stage's result is dropped, and the refine's kept, when its hard score
       is lower than the refine's by more than this (0–1; 1 = never dropped): on random views
       the fit can slide along a face while the hard score falls from ≈ 0.9 to 0.6.
@@ -297,7 +303,7 @@ class FineStage(eqx.Module):
     prev_slab: Scalar = math.inf
     curr_slab: Scalar = math.inf
     inlier: Scalar = 0.03
-    planar_fraction: Scalar = 0.7
+    planar_fraction: Scalar = 1.0
     guard: Scalar = 0.05
     from_rest: bool = eqx.field(static=True, default=True)
     turn_deg: float = eqx.field(static=True, default=15.0)
@@ -542,7 +548,7 @@ class Config(eqx.Module):
         a side, slabs of 3d / 2d, planes through the points): several times cheaper than the
         whole surface, and exact on noise-free pairs of flat faces; less accurate under range
         noise ([`FineStage`][jaxpose.FineStage]). The tests run it on the paper's pairs."""
-        fine = FineStage(prev_slab=3.0, curr_slab=2.0, points=896, anchor="point")
+        fine = FineStage(prev_slab=3.0, curr_slab=2.0, points=896, anchor="point", planar_fraction=0.7)
         return cls(**{"fine": fine, **changes})
 
     @classmethod

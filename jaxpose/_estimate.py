@@ -225,13 +225,13 @@ def turned(p: Float[Array, "6"], turn: Float[Array, "3"]) -> Float[Array, "6"]:
 def polished(fine: FineResult, exact: FineResult) -> FineResult:
     """`fine`, or its polish `exact` (the same fit run again from `fine.params` against planes
     through the previous points, `_fine.exact_surface`) when `fine`'s residuals show no range
-    noise (RMS below `_fine.EXACT_RMS`): there the centroid anchor only adds its curvature
+    noise (`planar_rms` below `_fine.EXACT_RMS`): there the centroid anchor only adds its curvature
     bias, and the point anchor is exact. On the realistic subset's noise-free pairs the median
     centroid error went from 0.09 to 0.01 cm (docs, Findings: the fine stage's anchor on the
     realistic benchmark). The polish replaces `fine` only when it converged and explains the
     cloud at least as well (`better_fine`)."""
     exact = tree_select(exact.converged | ~fine.converged, exact, fine)
-    return tree_select(fine.rms < _fine.EXACT_RMS, better_fine(fine, exact), fine)
+    return tree_select(fine.planar_rms < _fine.EXACT_RMS, better_fine(fine, exact), fine)
 
 
 def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResult, config: Config):
@@ -294,8 +294,13 @@ def fine_passes(
         else:
             active = True
         start = jnp.where(polish, best.params, start)
-        active = jnp.where(polish, best.rms < _fine.EXACT_RMS, active)
-        surface = eqx.tree_at(lambda f: f.offsets, fine, jnp.where(polish, exact_surface(fine).offsets, fine.offsets))
+        active = jnp.where(polish, best.planar_rms < _fine.EXACT_RMS, active)
+        exact = exact_surface(fine)
+        surface = eqx.tree_at(
+            lambda f: (f.offsets, f.valid),
+            fine,
+            (jnp.where(polish, exact.offsets, fine.offsets), jnp.where(polish, exact.valid, fine.valid)),
+        )
         run = fine_refine(problem, config, start, surface, active=active)
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 

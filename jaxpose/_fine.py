@@ -9,9 +9,11 @@ points near the cutting planes:
 
 - previous side (built once, in [`jaxpose.Problem.build`][]): the previous points within
   `FineStage.prev_slab`·d of a cutting plane, in frame n, each with the normal of a plane fitted to
-  its `FineStage.neighbours` nearest such points; only the `FineStage.planar_fraction` most planar
-  neighbourhoods (smallest / middle scatter eigenvalue) keep their point, because at edges
-  and corners a normal is meaningless;
+  its `FineStage.neighbours` nearest such points (the direction of least scatter); the
+  `FineStage.planar_fraction` most planar neighbourhoods (smallest / middle scatter
+  eigenvalue) keep their point: all of them by default, edges and corners included, whose
+  planes of least scatter hold the slides along the faces; `Config.paper()` drops the
+  least planar 30 %;
 - current side (chosen once, at the start p₀): the current points within `FineStage.curr_slab`·d
   of a cutting plane of frame ν(p₀);
 - residual of current point i at p: nᵀ(qᵢ(p) − a), with qᵢ(p) its coordinates in frame ν
@@ -100,7 +102,9 @@ class FineCloud(eqx.Module):
       through the point, or through its neighbourhood's centroid (`FineStage.anchor`).
     - `point_offsets`: `(K,)`, the same planes through the points themselves (the exact
       anchor of a noise-free view, used by [`exact_surface`][]).
-    - `valid`: `(K,)` mask (selected and planar).
+    - `valid`: `(K,)` mask (selected and among the `FineStage.planar_fraction` most planar).
+    - `planar`: `(K,)` mask: selected and among the `EXACT_PLANAR_FRACTION` most planar, the
+      planes [`exact_surface`][] keeps.
     - `grid`: the voxel grid of the selected points (planar or not) that the matching
       searches (`_neighbours`); its voxel is `NEIGHBOUR_VOXEL` sampling steps.
     - `graph`: `(K, k)` the `FineStage.neighbours` nearest selected points of each (indices
@@ -113,6 +117,7 @@ class FineCloud(eqx.Module):
     offsets: Float[Array, " K"]
     point_offsets: Float[Array, " K"]
     valid: Bool[Array, " K"]
+    planar: Bool[Array, " K"]
     grid: VoxelGrid
     graph: Int[Array, "K k"]
 
@@ -125,10 +130,16 @@ class FineResult(eqx.Module):
       `NOISE_STEP` standard deviations (within `FineStage.rounds`).
     - `steps`: Gauss–Newton steps taken, all rounds.
     - `inliers`: fraction of the selected current points within `FineStage.inlier` of the
-      previous points, with the last round's matches (made where that round started, within
-      `ROUND_TOL` of `params` when converged); 0 when none was selected.
-    - `rms`: root mean square point-to-plane residual of those inliers at `params`, each
-      weighted by its Cauchy weight (the measure the stage minimises), metres.
+      previous points (whether or not the nearest has a plane: a fit against fewer planes,
+      as [`exact_surface`][]'s, explains the same cloud as well), with the last round's
+      matches (made where that round started, within `ROUND_TOL` of `params` when
+      converged); 0 when none was selected.
+    - `rms`: root mean square point-to-plane residual at `params` of the inliers whose nearest
+      has a plane, each weighted by its Cauchy weight (the measure the stage minimises),
+      metres.
+    - `planar_rms`: the same over the inliers matched to the most planar previous points
+      (`FineCloud.planar`): whether a view shows range noise (`EXACT_RMS`), without the
+      edges' planes, which miss a noise-free surface by up to millimetres.
     - `used`: number of selected current points.
     """
 
@@ -137,6 +148,7 @@ class FineResult(eqx.Module):
     steps: Int[Array, ""]
     inliers: Float[Array, ""]
     rms: Float[Array, ""]
+    planar_rms: Float[Array, ""]
     used: Int[Array, ""]
 
 
@@ -227,13 +239,18 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     hood = neighbourhood_planes(grid, P, P, min(stage.neighbours, K))
     centroid, smallest, middle, normal, enough, graph = hood
     # Planarity: smallest / middle scatter eigenvalue. Keep the `FineStage.planar_fraction` most
-    # planar points: a rank, not an absolute threshold, so that it works whatever the noise
-    # (with 1 cm range noise on N5 every neighbourhood scored above 0.01, noise-free the
-    # faces score ~0 and the edges high).
+    # planar points (all by default): a rank, not an absolute threshold, so that it works
+    # whatever the noise (with 1 cm range noise on N5 every neighbourhood scored above 0.01,
+    # noise-free the faces score ~0 and the edges high).
     flatness = jnp.where(live & enough, smallest / jnp.maximum(middle, jnp.finfo(P.dtype).tiny), jnp.inf)
     count = jnp.sum(live & enough)
-    kth = jnp.clip(jnp.ceil(stage.planar_fraction * count).astype(jnp.int32) - 1, 0, K - 1)
-    ok = live & enough & (flatness <= jnp.sort(flatness)[kth])
+    ranked = jnp.sort(flatness)
+
+    def most_planar(fraction):
+        kth = jnp.clip(jnp.ceil(fraction * count).astype(jnp.int32) - 1, 0, K - 1)
+        return live & enough & (flatness <= ranked[kth])
+
+    ok = most_planar(stage.planar_fraction)
     # With `FineStage.anchor` "centroid" the plane goes through the neighbourhood's centroid, which
     # averages the range noise of `FineStage.neighbours` points. Through the raw noisy point, the
     # nearest-neighbour match prefers previous points whose noise moved them towards the
@@ -248,21 +265,30 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
         jnp.where(ok, offset, 0.0),
         jnp.where(ok, point_offset, 0.0),
         ok,
+        ok & most_planar(EXACT_PLANAR_FRACTION),
         grid,
         graph.astype(jnp.int32),
     )
 
 
+EXACT_PLANAR_FRACTION = 0.7
+"""Fraction of the previous points, the most planar ones, whose planes [`exact_surface`][]
+keeps. Noise-free, the plane of a neighbourhood across an edge or a corner misses the faces
+by micrometres to millimetres, more than a noise-free fit's error; under range noise those
+planes carry information the faces lack (`FineStage.planar_fraction`)."""
+
+
 def exact_surface(fine: FineCloud) -> FineCloud:
-    """`fine` with every plane through its own point: the anchor without the centroid's bias
-    on curved surfaces and across edges (r²/2R, tenths of a millimetre on the benchmark's
-    cylinders and dishes), for views whose residuals show no range noise to average
-    (`EXACT_RMS`)."""
-    return eqx.tree_at(lambda f: f.offsets, fine, fine.point_offsets)
+    """`fine` with every plane through its own point, and only the `EXACT_PLANAR_FRACTION` most
+    planar ones: the anchor without the centroid's bias on curved surfaces and across edges
+    (r²/2R, tenths of a millimetre on the benchmark's cylinders and dishes), for views whose
+    residuals show no range noise to average (`EXACT_RMS`)."""
+    return eqx.tree_at(lambda f: (f.offsets, f.valid), fine, (fine.point_offsets, fine.planar))
 
 
 EXACT_RMS = 1e-3
-"""A fine-stage result whose weighted RMS residual is below this (metres) is polished by a
+"""A fine-stage result whose weighted RMS residual over its most planar matches
+(`FineResult.planar_rms`) is below this (metres) is polished by a
 second run against [`exact_surface`][] (`estimate`): a view this clean has no noise for the
 centroid anchor to average, only its curvature bias. On the realistic subset the noise-free
 pairs' RMS was 0.0–0.9 mm with centroid anchors and the noisy ones' 1.5 mm and up."""
@@ -281,13 +307,15 @@ def _match(q: Float[Array, "3 S"], fine: FineCloud):
 
 
 class Matches(NamedTuple):
-    """The plane (unit normal, offset; frame n) matched to each current point, and whether
-    its previous point is planar."""
+    """The plane (unit normal, offset; frame n) matched to each current point, whether its
+    previous point has a plane (`FineCloud.valid`), the previous point itself, and whether it
+    is among the most planar (`FineCloud.planar`)."""
 
     normals: Float[Array, "3 S"]
     offsets: Float[Array, " S"]
     valid: Bool[Array, " S"]
     points: Float[Array, "3 S"]
+    planar: Bool[Array, " S"]
 
 
 def _residuals(p, b, matched: Matches, weight):
@@ -307,7 +335,13 @@ def _residuals(p, b, matched: Matches, weight):
 def _matches(fine: FineCloud, nearest: Int[Array, " S"], dist: Float[Array, " S"], live, inlier):
     """The planes of the previous points `nearest` (indices into `fine.points`) and the inlier
     mask: live current points within `inlier` (metres, `dist`) of a planar previous point."""
-    matched = Matches(fine.normals[:, nearest], fine.offsets[nearest], fine.valid[nearest], fine.points[:, nearest])
+    matched = Matches(
+        fine.normals[:, nearest],
+        fine.offsets[nearest],
+        fine.valid[nearest],
+        fine.points[:, nearest],
+        fine.planar[nearest],
+    )
     return matched, live & matched.valid & (dist < inlier)
 
 
@@ -477,7 +511,8 @@ def fine_refine(
         # Only a round that searched the voxels ends the fit (`GRAPH_SHIFT`).
         settled = small & ~local
         lasts = (index, reached, jnp.where(local, q_searched, q), finishing | (small & local))
-        return y + step, settled, rounds + 1, steps + sol.stats["num_steps"], (matched, weight), lasts
+        near = live & (dist < inlier)
+        return y + step, settled, rounds + 1, steps + sol.stats["num_steps"], (matched, weight, near), lasts
 
     def more(state):
         _, settled, rounds, _, _, _ = state
@@ -486,24 +521,25 @@ def fine_refine(
     # Placeholder matches, of the right structure: an active run replaces them in its first round;
     # an inactive one keeps them, with weight 0 everywhere.
     shapes = jax.eval_shape(lambda: _correspond(start, b, live, fine, inlier))
-    unmatched = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
+    unmatched = (*jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), jnp.zeros(b.shape[1], bool))
     S = b.shape[1]
     lasts = (jnp.zeros(S, jnp.int32), jnp.zeros(S, bool), jnp.zeros_like(b), jnp.asarray(False))
     state = (start / scale, jnp.asarray(False), jnp.asarray(0), jnp.asarray(0), unmatched, lasts)
-    y, settled, _, steps, (matched, weight), _ = jax.lax.while_loop(more, one_round, state)
+    y, settled, _, steps, (matched, weight, near), _ = jax.lax.while_loop(more, one_round, state)
     p = y * scale
     # The inlier fraction and RMS use the last round's matches (made where that round started,
     # within ROUND_TOL of p when converged) rather than a fresh nearest-neighbour search at p,
     # which would cost as much as a round's matching.
     r = _residuals(p, b, matched, weight)
     w = _robust_weights(r, weight)
-    n_in, used = jnp.sum(weight), jnp.sum(live)
+    n_in, used = jnp.sum(near), jnp.sum(live)
     return FineResult(
         params=p,
         converged=settled,
         steps=jnp.asarray(steps, jnp.int32),
         inliers=jnp.where(used > 0, n_in / jnp.maximum(used, 1), 0.0),
         rms=_weighted_rms(r, w),
+        planar_rms=_weighted_rms(r, w * matched.planar),
         used=used.astype(jnp.int32),
     )
 

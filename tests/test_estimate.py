@@ -228,7 +228,15 @@ def _fine_result(angles_deg, inliers):
     from jaxpose._fine import FineResult
 
     p = jnp.asarray([*np.radians(angles_deg), 0.0, 0.0, 0.0])
-    return FineResult(p, jnp.asarray(True), jnp.asarray(5), jnp.asarray(inliers), jnp.asarray(0.003), jnp.asarray(900))
+    return FineResult(
+        p,
+        jnp.asarray(True),
+        jnp.asarray(5),
+        jnp.asarray(inliers),
+        jnp.asarray(0.003),
+        jnp.asarray(0.003),
+        jnp.asarray(900),
+    )
 
 
 @pytest.mark.parametrize(

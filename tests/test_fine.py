@@ -1,7 +1,8 @@
 """Fine stage (jaxpose.fine): thinning, normals, and recovery of a displacement from a
 start a few degrees off, against the truth of the simulated pair (float64)."""
 
-import equinox as eqx
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,6 +15,7 @@ import jaxpose as jp
 from jaxpose._fine import (
     Matches,
     _residuals,
+    exact_surface,
     fine_cloud,
     fine_covariance,
     fine_refine,
@@ -52,13 +54,22 @@ def test_normals_of_a_plane_and_no_normal_at_a_corner():
     config = jp.Config(fine=jp.FineStage(points=2048))
     fine = fine_cloud(pts, jnp.ones(len(pts), bool), config, ((1, 0.0),), jnp.asarray(0.026))
     P, N, ok = np.asarray(fine.points).T, np.asarray(fine.normals).T, np.asarray(fine.valid)
-    on_floor = ok & (np.abs(P[:, 2]) < 1e-12) & (np.abs(P[:, 0]) > 0.2)
-    on_wall = ok & (np.abs(P[:, 0]) < 1e-12) & (P[:, 2] > 0.25)
+    planar = np.asarray(fine.planar)
+    on_floor = planar & (np.abs(P[:, 2]) < 1e-12) & (np.abs(P[:, 0]) > 0.2)
+    on_wall = planar & (np.abs(P[:, 0]) < 1e-12) & (P[:, 2] > 0.25)
     assert on_floor.sum() > 10 and on_wall.sum() > 10
     np.testing.assert_allclose(np.abs(N[on_floor, 2]), 1.0, atol=1e-9)
     np.testing.assert_allclose(np.abs(N[on_wall, 0]), 1.0, atol=1e-9)
-    # Points whose neighbourhood spans both sheets (near the edge) get no normal.
-    assert not np.any(ok & (np.abs(P[:, 0]) < 0.01) & (np.abs(P[:, 2]) < 0.01))
+    # Points whose neighbourhood spans both sheets (near the edge) keep a plane by default
+    # (`FineStage.planar_fraction` 1), but are not among the most planar: the exact surface,
+    # and a planar fraction of 0.7, leave them out.
+    edge = (np.abs(P[:, 0]) < 0.01) & (np.abs(P[:, 2]) < 0.01)
+    assert np.any(ok & edge) and not np.any(planar & edge)
+    assert np.all(ok[planar]) and np.ceil(0.7 * ok.sum()) <= planar.sum() < ok.sum()
+    np.testing.assert_array_equal(np.asarray(exact_surface(fine).valid), planar)
+    seventy = jp.Config(fine=jp.FineStage(points=2048, planar_fraction=0.7))
+    fewer = fine_cloud(pts, jnp.ones(len(pts), bool), seventy, ((1, 0.0),), jnp.asarray(0.026))
+    np.testing.assert_array_equal(np.asarray(fewer.valid), planar)
 
 
 def test_smallest_eigen_matches_eigh_and_flags_undefined_normals():
@@ -125,13 +136,26 @@ def test_tracking_preset_fits_every_current_point(paper_clouds):
     valid_curr, valid_prev = int(curr.valid.sum()), int(prev.valid.sum())
     assert counts["whole"][0] == min(valid_curr, WHOLE_CLOUD.fine.points)
     assert counts["slabs"][0] < counts["whole"][0] / 2
-    # On the previous side every point is a candidate; the 70 % most planar of those with a
-    # normal keep it (a point with fewer than 3 neighbours in reach has none: under 1 % here).
+    # On the previous side every point is a candidate and every one with a normal keeps it
+    # (`planar_fraction` 1; a point with fewer than 3 neighbours in reach has none: under 1 %
+    # here); the 70 % most planar of them are `planar`.
     candidates = min(valid_prev, WHOLE_CLOUD.fine.points)
-    assert 0.99 * 0.7 * candidates <= counts["whole"][1] <= 0.7 * candidates + 1
+    assert 0.99 * candidates <= counts["whole"][1] <= candidates
+    planar = int(jp.Problem.build(prev, curr, WHOLE_CLOUD).fine.planar.sum())
+    assert 0.99 * 0.7 * candidates <= planar <= 0.7 * candidates + 1
 
 
-@pytest.mark.parametrize("config", [CONFIG, WHOLE_CLOUD], ids=["slabs", "whole-cloud"])
+WHOLE_CLOUD_FACES = jp.Config.tracking(
+    search=WHOLE_CLOUD.search,
+    refine=WHOLE_CLOUD.refine,
+    capacities=WHOLE_CLOUD.capacities,
+    fine=dataclasses.replace(WHOLE_CLOUD.fine, planar_fraction=0.7),
+)
+
+
+@pytest.mark.parametrize(
+    "config", [CONFIG, WHOLE_CLOUD, WHOLE_CLOUD_FACES], ids=["slabs", "whole-cloud", "whole-cloud-faces"]
+)
 def test_fine_stage_recovers_the_displacement_from_a_start_two_degrees_off(paper_clouds, config):
     problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config)
     R1, R2 = paper_rotation("previous"), paper_rotation("variant2")
@@ -141,13 +165,17 @@ def test_fine_stage_recovers_the_displacement_from_a_start_two_degrees_off(paper
     err = np.abs(np.asarray(result.params - truth))
     assert bool(result.converged)
     assert np.degrees(err[:3]).max() < 0.05 and 100 * err[3:].max() < 0.05, err
-    # Noise-free planar faces: the matched residuals vanish at the optimum (measured 0.00 mm);
-    # 70 % of the previous points keep a normal, so some current points have no match within
-    # 3 cm: 0.69 of them with the default's 896 points a side (0.75+ with 2048).
+    # Noise-free planar faces: the matched residuals vanish at the optimum (measured 0.00 mm).
     # With planes through the neighbourhood centroids (the whole-cloud preset), a neighbourhood
     # that reaches over an edge puts its plane a few µm off the face: 0.011 mm RMS measured.
+    # With every plane (`planar_fraction` 1, the whole-cloud default) the edges' planes,
+    # which miss the faces by µm to mm, pull the optimum too (0.023 mm RMS over the faces
+    # measured; the estimate's polish against `exact_surface` removes it): the bound is for
+    # fits against the faces' planes.
     rms_bound = 1e-5 if config.fine.anchor == "point" else 2e-5
-    assert float(result.inliers) > 0.65 and float(result.rms) < rms_bound
+    assert float(result.inliers) > 0.65
+    if config.fine.planar_fraction < 1:
+        assert float(result.rms) < rms_bound
     # The start was more than 1° off, so the recovery above is the stage's work.
     assert np.degrees(np.abs(np.asarray(start - truth))[:3]).max() > 1.0
 
@@ -206,8 +234,13 @@ def test_graph_matching_rounds_give_the_voxel_search_fit(monkeypatch, target, si
         assert by_graph < 0.75 * by_voxels, (by_graph, by_voxels)
         assert np.degrees(err[:3]).max() < 0.1 and err[3:].max() < 0.001, err
     assert abs(float(graph.inliers) - float(voxels.inliers)) <= 0.005
+    # How far the fit from rest lands from the truth: noise-free within 0.3°; on this satellite
+    # pair with 1 cm noise 0.55° (measured; under 0.3° when the least planar 30 % of the
+    # previous points had no plane, `FineStage.planar_fraction` 0.7; the whole estimate on
+    # this pair, benchmark row satellite σ1 #0, is 0.44° off).
     to_truth = np.abs(np.asarray(graph.params - truth))
-    assert np.degrees(to_truth[:3]).max() < 0.3 and to_truth[3:].max() < 0.005, to_truth
+    bound_deg = 0.3 if sigma == 0 else 0.6
+    assert np.degrees(to_truth[:3]).max() < bound_deg and to_truth[3:].max() < 0.005, to_truth
 
 
 def test_the_normal_equations_solver_gives_the_qr_result(monkeypatch):
@@ -266,7 +299,11 @@ def test_the_jitted_jacobian_of_the_residuals_matches_the_eager_one(size):
     n = rng.normal(size=(3, size))
     n /= np.linalg.norm(n, axis=0)
     matched = Matches(
-        jnp.asarray(n, jnp.float32), jnp.asarray(rng.normal(size=size), jnp.float32), jnp.ones(size, bool), b
+        jnp.asarray(n, jnp.float32),
+        jnp.asarray(rng.normal(size=size), jnp.float32),
+        jnp.ones(size, bool),
+        b,
+        jnp.ones(size, bool),
     )
     weight = jnp.asarray(rng.uniform(size=size) > 0.3)
     p = jnp.asarray([-0.066, -0.099, 0.159, -0.057, -0.060, -0.0137], jnp.float32)
@@ -330,7 +367,7 @@ def test_the_fine_passes_are_the_separate_runs(paper_clouds):
     (RMS below `EXACT_RMS`), the better run polished against planes through the points. An
     inactive run keeps its start and reports no work."""
     from jaxpose._estimate import better_fine, fine_passes
-    from jaxpose._fine import EXACT_RMS, exact_surface
+    from jaxpose._fine import EXACT_RMS
 
     config = jp.Config(capacities=jp.Capacities(max_points=5120))
     problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config)
@@ -341,17 +378,17 @@ def test_the_fine_passes_are_the_separate_runs(paper_clouds):
     runs = jax.jit(lambda s: fine_passes(problem, config, s))(starts)
     assert runs.params.shape == (3, 6)
 
-    def run_on(start, offsets):  # one run against planes with the given offsets
-        return fine_refine(problem, config, start, eqx.tree_at(lambda f: f.offsets, problem.fine, offsets))
+    def run_on(start, surface):  # one run against the given planes
+        return fine_refine(problem, config, start, surface)
 
     apart = jax.jit(run_on)
-    separate = [apart(starts[i], problem.fine.offsets) for i in range(2)]
+    separate = [apart(starts[i], problem.fine) for i in range(2)]
     for i, run in enumerate(separate):
         np.testing.assert_allclose(np.asarray(runs.params[i]), np.asarray(run.params), atol=1e-9)
         assert int(runs.steps[i]) == int(run.steps)
     best = better_fine(*separate)
-    assert float(best.rms) < EXACT_RMS
-    polish = apart(best.params, exact_surface(problem.fine).offsets)
+    assert float(best.planar_rms) < EXACT_RMS
+    polish = apart(best.params, exact_surface(problem.fine))
     np.testing.assert_allclose(np.asarray(runs.params[2]), np.asarray(polish.params), atol=1e-9)
     idle = jax.jit(lambda s: fine_refine(problem, config, s, active=False))(starts[0])
     np.testing.assert_array_equal(np.asarray(idle.params), np.asarray(starts[0]))

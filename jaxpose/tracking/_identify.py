@@ -69,7 +69,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._tree import tree_select
-from ._track import Track
+from ._track import Track, chained_motions
 
 RATE_WINDOW_S = 0.5
 """Half-width (s) of the centred differences that give the initial body rates: long enough
@@ -483,12 +483,11 @@ def fit_centre(
         x = jnp.linalg.lstsq(A_d, b_d)[0]
         return x, A_d, A_d @ x - b_d
 
-    x, _, r = solve(jnp.zeros((), A.dtype))
+    x, A_d, r = solve(jnp.zeros((), A.dtype))
     for _ in range(shared_rounds):
         x, A_d, r = solve(
             shared_variance_ratio((A.reshape(-1, 6) @ x - b.reshape(-1)).reshape(-1, 3), used, references)
         )
-    A_d = A.reshape(-1, 6) if shared_rounds == 0 else A_d
     n = 3 * jnp.sum(used)
     variance = jnp.sum(r**2) / jnp.maximum(n - 6, 1) * _design_effect(r.reshape(-1, 3), used, references)
     raw = A.reshape(-1, 6) @ x - b.reshape(-1)
@@ -656,8 +655,13 @@ def _identify_motion(
         k = jnp.minimum(index, n_starts - 1)
         base_axes, base_moments = jnp.where(first, axes_s[k], axes0), jnp.where(first, moments_s[k], moments0)
         data = (times, rotations, used, references, whiten, base_axes, base_moments, orbit)
-        ratio = shared_variance_ratio(_rotation_residuals(theta, data), used, references)
-        ratio = jnp.where(first, jnp.zeros_like(ratio), ratio)
+        # The start rounds fit the registrations as independent; only a refit needs the ratio
+        # (a cond, so that the start rounds skip its ODE solve).
+        ratio = jax.lax.cond(
+            first,
+            lambda: jnp.zeros((), times.dtype),
+            lambda: shared_variance_ratio(_rotation_residuals(theta, data), used, references),
+        )
         start = jnp.where(first, jnp.concatenate([jnp.zeros(5, times.dtype), omega_s[k]]), theta)
         sol = solve(start, data, ratio)
         new_cost = jnp.sum(_rotation_residuals(sol.value, data) ** 2)
@@ -768,8 +772,7 @@ def identify_tracked(
     rotations = jnp.asarray(rotations)
     points = jnp.asarray(points, rotations.dtype)
     T = rotations.shape[0]
-    translations = points - jnp.einsum("tij,j->ti", rotations, points[0])
-    finite = jnp.all(jnp.isfinite(rotations), axis=(1, 2)) & jnp.all(jnp.isfinite(translations), axis=1)
+    translations, finite = chained_motions(rotations, points)
     valid = jnp.asarray(registered, bool) & finite
     count = int(jnp.sum(valid))
     if count < MIN_FRAMES:

@@ -108,10 +108,9 @@ def body_model(
         frames = np.unique(np.concatenate([[0], np.asarray(track.keyframes)]))
     frames = np.asarray(frames, int)
     frames = frames[registered[frames]]
-    rotations = jnp.asarray(track.rotations)[frames]
-    translations = track.points[frames] - jnp.einsum("fij,j->fi", rotations, track.points[0])
-    finite = np.asarray(jnp.all(jnp.isfinite(rotations), axis=(1, 2)) & jnp.all(jnp.isfinite(translations), axis=1))
-    frames, rotations, translations = frames[finite], rotations[finite], translations[finite]
+    translations, finite = track.motions()
+    frames = frames[np.asarray(finite)[frames]]
+    rotations, translations = jnp.asarray(track.rotations)[frames], translations[frames]
     if frames.size == 0:
         raise ValueError("body_model needs at least one registered frame with a finite motion.")
     if dynamics is None:

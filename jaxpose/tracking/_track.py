@@ -343,6 +343,17 @@ def measurement_covariance(problem: Problem, config: Config, p: Float[Array, "6"
     return (out + out.T) / 2
 
 
+def chained_motions(
+    rotations: Float[Array, "T 3 3"], points: Float[Array, "T 3"]
+) -> tuple[Float[Array, "T 3"], Bool[Array, " T"]]:
+    """The motion from the first frame to frame k, x ↦ R_0k x + t_k in frame c (metres), from
+    the chained rotations and tracked points: t_k = r_k − R_0k r_0, so that the tracked point
+    r_0 goes to r_k. Returns the translations (T, 3) and whether frame k's motion is finite."""
+    translations = points - jnp.einsum("tij,j->ti", rotations, points[0])
+    finite = jnp.all(jnp.isfinite(rotations), axis=(1, 2)) & jnp.all(jnp.isfinite(translations), axis=1)
+    return translations, finite
+
+
 class Track(eqx.Module):
     """Per frame k (leading axis T): the chained measurement (`rotations` R_0k, `points`),
     the `status` of its estimate, and the filtered `attitude`, `rate` (rad/s, frame c),
@@ -358,6 +369,11 @@ class Track(eqx.Module):
     frames. [`jaxpose.identify`][] uses these. `continuity` (as `Chain.continuity`): frames
     whose ambiguous or weak estimate motion continuity resolved; they count as registered
     (`registered`)."""
+
+    def motions(self) -> tuple[Float[Array, "T 3"], Bool[Array, " T"]]:
+        """The translations t_k of the motions x ↦ `rotations`[k] x + t_k from the first frame
+        to frame k (frame c, metres) and whether each is finite ([`chained_motions`][])."""
+        return chained_motions(self.rotations, self.points)
 
     def registered(self) -> Bool[Array, " T"]:
         """Frames whose measurement entered the chain: a successful estimate, or an ambiguous
