@@ -372,7 +372,8 @@ class Track(eqx.Module):
 
     def motions(self) -> tuple[Float[Array, "T 3"], Bool[Array, " T"]]:
         """The translations t_k of the motions x ↦ `rotations`[k] x + t_k from the first frame
-        to frame k (frame c, metres) and whether each is finite ([`chained_motions`][])."""
+        to frame k (frame c, metres), t_k = `points`[k] − `rotations`[k] `points`[0], and
+        whether each is finite."""
         return chained_motions(self.rotations, self.points)
 
     def registered(self) -> Bool[Array, " T"]:
