@@ -333,8 +333,9 @@ def _residuals(p, b, matched: Matches, weight):
 
 
 def _matches(fine: FineCloud, nearest: Int[Array, " S"], dist: Float[Array, " S"], live, inlier):
-    """The planes of the previous points `nearest` (indices into `fine.points`) and the inlier
-    mask: live current points within `inlier` (metres, `dist`) of a planar previous point."""
+    """The planes of the previous points `nearest` (indices into `fine.points`), the inlier
+    mask (live current points within `inlier`, metres, `dist`, of a previous point with a
+    plane) and the near mask (within `inlier` of any previous point: `FineResult.inliers`)."""
     matched = Matches(
         fine.normals[:, nearest],
         fine.offsets[nearest],
@@ -342,11 +343,13 @@ def _matches(fine: FineCloud, nearest: Int[Array, " S"], dist: Float[Array, " S"
         fine.points[:, nearest],
         fine.planar[nearest],
     )
-    return matched, live & matched.valid & (dist < inlier)
+    near = live & (dist < inlier)
+    return matched, near & matched.valid, near
 
 
-def _correspond(p, b, live, fine: FineCloud, inlier) -> tuple[Matches, Bool[Array, " S"]]:
-    """The nearest previous point (and normal) of each current point at p, and the inlier mask."""
+def _correspond(p, b, live, fine: FineCloud, inlier) -> tuple[Matches, Bool[Array, " S"], Bool[Array, " S"]]:
+    """The nearest previous point (and normal) of each current point at p, and the inlier and
+    near masks (`_matches`)."""
     return _matches(fine, *_match(_moved(p, b), fine), live, inlier)
 
 
@@ -427,7 +430,7 @@ def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Arra
     at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite covariance."""
     p = jnp.asarray(p, problem.d.dtype)
     b, live = select_current(problem, config, p)
-    matched, weight = _correspond(p, b, live, problem.fine, config.fine.inlier)
+    matched, weight, _ = _correspond(p, b, live, problem.fine, config.fine.inlier)
     J = jax.jacfwd(_residuals)(p, b, matched, weight)
     r = _residuals(p, b, matched, weight)
     sigma2 = jnp.maximum(jnp.sum(r**2) / jnp.maximum(jnp.sum(weight) - 6, 1), SIGMA_FLOOR**2)
@@ -490,7 +493,7 @@ def fine_refine(
         local = (rounds > 0) & (shift <= reach**2) & ~finishing
         index, dist = _round_matches(fine, q, last, reached, local)
         reached = jnp.where(local, reached, jnp.isfinite(dist))
-        matched, weight = _matches(fine, index, dist, live, inlier)
+        matched, weight, near = _matches(fine, index, dist, live, inlier)
         r0 = _residuals(y * scale, b, matched, weight)
         w0 = _robust_weights(r0, weight)
         root_w = jnp.sqrt(w0)
@@ -511,7 +514,6 @@ def fine_refine(
         # Only a round that searched the voxels ends the fit (`GRAPH_SHIFT`).
         settled = small & ~local
         lasts = (index, reached, jnp.where(local, q_searched, q), finishing | (small & local))
-        near = live & (dist < inlier)
         return y + step, settled, rounds + 1, steps + sol.stats["num_steps"], (matched, weight, near), lasts
 
     def more(state):
@@ -521,7 +523,7 @@ def fine_refine(
     # Placeholder matches, of the right structure: an active run replaces them in its first round;
     # an inactive one keeps them, with weight 0 everywhere.
     shapes = jax.eval_shape(lambda: _correspond(start, b, live, fine, inlier))
-    unmatched = (*jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes), jnp.zeros(b.shape[1], bool))
+    unmatched = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     S = b.shape[1]
     lasts = (jnp.zeros(S, jnp.int32), jnp.zeros(S, bool), jnp.zeros_like(b), jnp.asarray(False))
     state = (start / scale, jnp.asarray(False), jnp.asarray(0), jnp.asarray(0), unmatched, lasts)

@@ -128,9 +128,9 @@ WHOLE_CLOUD = jp.Config.tracking(
 
 def test_tracking_preset_fits_every_current_point(paper_clouds):
     prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
-    counts = {}
+    counts, problems = {}, {}
     for name, config in (("slabs", CONFIG), ("whole", WHOLE_CLOUD)):
-        problem = jp.Problem.build(prev, curr, config)
+        problems[name] = problem = jp.Problem.build(prev, curr, config)
         _, live = select_current(problem, config, jnp.zeros(6))
         counts[name] = int(live.sum()), int(problem.fine.valid.sum())
     valid_curr, valid_prev = int(curr.valid.sum()), int(prev.valid.sum())
@@ -141,16 +141,11 @@ def test_tracking_preset_fits_every_current_point(paper_clouds):
     # here); the 70 % most planar of them are `planar`.
     candidates = min(valid_prev, WHOLE_CLOUD.fine.points)
     assert 0.99 * candidates <= counts["whole"][1] <= candidates
-    planar = int(jp.Problem.build(prev, curr, WHOLE_CLOUD).fine.planar.sum())
+    planar = int(problems["whole"].fine.planar.sum())
     assert 0.99 * 0.7 * candidates <= planar <= 0.7 * candidates + 1
 
 
-WHOLE_CLOUD_FACES = jp.Config.tracking(
-    search=WHOLE_CLOUD.search,
-    refine=WHOLE_CLOUD.refine,
-    capacities=WHOLE_CLOUD.capacities,
-    fine=dataclasses.replace(WHOLE_CLOUD.fine, planar_fraction=0.7),
-)
+WHOLE_CLOUD_FACES = dataclasses.replace(WHOLE_CLOUD, fine=dataclasses.replace(WHOLE_CLOUD.fine, planar_fraction=0.7))
 
 
 @pytest.mark.parametrize(
