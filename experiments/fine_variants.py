@@ -3,9 +3,10 @@
 `uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
 [--set anchors|cost|gates|edges] [--seed 0]`
 
-`--set anchors` (the default): the planes' anchor, the noise-free polish and the within-the-noise
-stop. `--set cost`: what the stage's cost settings (`FineStage.points`, `steps`, `rounds`,
-`neighbours`) buy in accuracy (docs, Findings: what the fine stage's cost buys). `--set gates`:
+`--set anchors` (the default): the planes' anchor (the default "hybrid", centroids everywhere,
+points everywhere), the noise-free polish and the within-the-noise stop. `--set cost`: what the
+stage's cost settings (`FineStage.points`, `steps`, `rounds`, `neighbours`) buy in accuracy
+(docs, Findings: what the fine stage's cost buys). `--set gates`:
 the inlier gate, the robust scale and the planar fraction (docs, Findings: the fine stage's
 gates on two draws of pairs). `--set edges`: the planar fraction, whether the previous points
 at edges and corners keep their planes (docs, Findings: planes at edges and corners). `--seed`
@@ -104,8 +105,10 @@ def main():
     gicp = gicp_rows(cases)
     default = jp.Config()
     point = dataclasses.replace(default, fine=dataclasses.replace(default.fine, anchor="point"))
+    centroid = dataclasses.replace(default, fine=dataclasses.replace(default.fine, anchor="centroid"))
     variants = [
         ("default", default, {}),
+        ("planes through the centroids", centroid, {}),
         ("planes through the points", point, {}),
         ("no noise-free polish", default, {"EXACT_RMS": 0.0}),
         ("no within-the-noise stop", default, {"NOISE_STEP": 0.0}),

@@ -287,12 +287,17 @@ class FineStage(eqx.Module):
       near-symmetry axis).
     - `points`: capacity of each side (static); more points are thinned evenly.
     - `neighbours`: neighbours of a normal fit (static).
-    - `anchor`: "centroid" or "point" (static): each previous point's plane goes through its
-      neighbourhood's centroid or through the point itself. With 1 cm range noise the point
-      anchor biases registrations in proportion to the motion (the nearest match favours
-      points that noise moved towards the current point) and the centroid removes most of it
-      (docs, Findings: the fine stage's anchor). Noise-free, the plane of a neighbourhood that spans an
-      edge misses the surface by micrometres to millimetres.
+    - `anchor`: "hybrid" (the default), "centroid" or "point" (static): each previous point's
+      plane goes through its neighbourhood's centroid or through the point itself; "hybrid"
+      takes the centroid for the 70 % most planar neighbourhoods (faces) and the point for
+      the rest (edges, corners). With 1 cm range noise the point anchor biases registrations
+      in proportion to the motion (the nearest match favours points that noise moved
+      towards the current point) and the centroid removes most of it (docs, Findings: the
+      fine stage's anchor). Across an edge the centroid lies inside the body, so its plane
+      runs below the surface and pulls the fit towards the body: with every plane kept
+      (`planar_fraction` 1) that set the centroid error's floor under noise (docs, Findings:
+      the hybrid anchor). Noise-free, the plane of a neighbourhood that spans an edge misses
+      the surface by micrometres to millimetres.
     - `rounds`: most match-then-solve rounds (static).
     - `steps`, `tol`: Gauss–Newton's step limit per round and its rtol = atol, in units
       of 1° and 1 cm (static). At 1e-4, on the paper's pairs × 3 keys every result is within
@@ -310,14 +315,14 @@ class FineStage(eqx.Module):
     symmetry_ratio: Scalar = 0.85
     points: int = eqx.field(static=True, default=4096)
     neighbours: int = eqx.field(static=True, default=20)
-    anchor: Literal["point", "centroid"] = eqx.field(static=True, default="centroid")
+    anchor: Literal["point", "centroid", "hybrid"] = eqx.field(static=True, default="hybrid")
     rounds: int = eqx.field(static=True, default=20)
     steps: int = eqx.field(static=True, default=20)
     tol: float = eqx.field(static=True, default=1e-4)
 
     def __check_init__(self):
-        if self.anchor not in ("centroid", "point"):
-            raise ValueError(f"FineStage.anchor must be 'centroid' or 'point', got {self.anchor!r}.")
+        if self.anchor not in ("centroid", "point", "hybrid"):
+            raise ValueError(f"FineStage.anchor must be 'hybrid', 'centroid' or 'point', got {self.anchor!r}.")
         if min(self.points, self.neighbours - 2, self.steps, self.rounds) < 1 or not self.tol > 0:
             raise ValueError("FineStage needs points ≥ 1, neighbours ≥ 3, steps ≥ 1, rounds ≥ 1 and tol > 0.")
         for name in ("prev_slab", "curr_slab", "inlier"):
@@ -582,17 +587,20 @@ class Config(eqx.Module):
         refined, 6 hypotheses fitted to the surface), then the default fine stage from the
         best hypothesis. `Estimate.hypotheses` holds the distinct hypotheses, best first;
         `Estimate.ambiguous` says that another one explains the clouds as well (a symmetric
-        target). Up to 30 BFGS steps per mode. The fine stage keeps `planar_fraction` 0.7,
-        as when the capture benchmark was measured: with every plane, noise-free N5 lost one
-        of its four equivalent motions from the hypotheses (`tests/test_capture.py`)."""
-        base = {"so3": RotationSearch(), "refine": Refine(max_steps=30), "fine": FineStage(planar_fraction=0.7)}
+        target). Up to 30 BFGS steps per mode. The fine stage keeps `planar_fraction` 0.7
+        and planes through the centroids (`anchor` "centroid"), as when the capture benchmark
+        was measured: with every plane, noise-free N5 lost one of its four equivalent motions
+        from the hypotheses (`tests/test_capture.py`)."""
+        fine = FineStage(planar_fraction=0.7, anchor="centroid")
+        base = {"so3": RotationSearch(), "refine": Refine(max_steps=30), "fine": fine}
         return cls(**{**base, **changes})
 
     @classmethod
     def tracking(cls, **changes) -> Config:
         """Frame-to-frame registration of noisy clouds (`jaxpose.track`): the search on the full
         patterns (CMA-ES 32 × 40, up to 100 BFGS steps) and the fine stage over the whole
-        cloud, 6144 points a side, planes through the neighbourhood centroids.
+        cloud, 6144 points a side, planes through the neighbourhood centroids on faces (the
+        default "hybrid" anchor).
 
         Why: with 1 cm range noise the fine stage's error falls as more surface is fitted. On
         the 10 s N5 tumbles of `experiments/tumble_tracking.py` (4.5 °/s, 5.5 m) 247–250 of

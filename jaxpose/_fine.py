@@ -18,8 +18,9 @@ points near the cutting planes:
   of a cutting plane of frame ν(p₀);
 - residual of current point i at p: nᵀ(qᵢ(p) − a), with qᵢ(p) its coordinates in frame ν
   and (a, n) the nearest previous point and its normal — zero where the moved surfaces
-  coincide; with `FineStage.anchor` "centroid" the plane goes through the centroid of
-  a's neighbourhood instead of a (it averages the range noise; `Config.tracking()`).
+  coincide; with `FineStage.anchor` "hybrid" (the default) the plane of a face-like
+  neighbourhood goes through its centroid instead of a (it averages the range noise), and
+  across edges and corners through a (where the centroid lies inside the body).
   Points farther than `FineStage.inlier` from every previous point (surface seen only in one
   cloud) get weight 0.
 
@@ -251,12 +252,16 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
         return live & enough & (flatness <= ranked[kth])
 
     ok = most_planar(stage.planar_fraction)
-    # With `FineStage.anchor` "centroid" the plane goes through the neighbourhood's centroid, which
-    # averages the range noise of `FineStage.neighbours` points. Through the raw noisy point, the
-    # nearest-neighbour match prefers previous points whose noise moved them towards the
-    # current point, which biased registrations of N5 with 1 cm noise in proportion to the
-    # motion (docs, Findings: the fine stage's anchor). Matching and the inlier test use the points.
-    anchor = centroid if stage.anchor == "centroid" else P
+    # A plane through the neighbourhood's centroid averages the range noise of
+    # `FineStage.neighbours` points. Through the raw noisy point, the nearest-neighbour match
+    # prefers previous points whose noise moved them towards the current point, which biased
+    # registrations of N5 with 1 cm noise in proportion to the motion (docs, Findings: the fine
+    # stage's anchor). Across an edge or a corner, though, the centroid lies inside the body and
+    # its plane below the surface, so "hybrid" takes the centroid only for the face-like
+    # neighbourhoods (`EXACT_PLANAR_FRACTION` most planar) and the point elsewhere. Matching and
+    # the inlier test use the points.
+    face = ok & most_planar(EXACT_PLANAR_FRACTION)
+    anchor = {"centroid": centroid, "point": P, "hybrid": jnp.where(face[None], centroid, P)}[stage.anchor]
     offset = jnp.sum(normal * anchor, axis=0)
     point_offset = jnp.sum(normal * P, axis=0)
     return FineCloud(
@@ -265,16 +270,18 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
         jnp.where(ok, offset, 0.0),
         jnp.where(ok, point_offset, 0.0),
         ok,
-        ok & most_planar(EXACT_PLANAR_FRACTION),
+        face,
         grid,
         graph.astype(jnp.int32),
     )
 
 
 EXACT_PLANAR_FRACTION = 0.7
-"""Fraction of the previous points, the most planar ones, whose planes [`exact_surface`][]
-keeps. Noise-free, the plane of a neighbourhood across an edge or a corner misses the faces
-by micrometres to millimetres, more than a noise-free fit's error; under range noise those
+"""Fraction of the previous points, the most planar ones, counted as faces
+(`FineCloud.planar`): [`exact_surface`][] keeps only their planes, and the "hybrid" anchor
+puts their planes through the neighbourhood's centroid (the others' through the point).
+Noise-free, the plane of a neighbourhood across an edge or a corner misses the faces by
+micrometres to millimetres, more than a noise-free fit's error; under range noise those
 planes carry information the faces lack (`FineStage.planar_fraction`)."""
 
 

@@ -72,6 +72,33 @@ def test_normals_of_a_plane_and_no_normal_at_a_corner():
     np.testing.assert_array_equal(np.asarray(fewer.valid), planar)
 
 
+def test_the_hybrid_anchor_keeps_face_centroids_and_the_points_across_a_ridge():
+    # A roof z = −|x| of 5 cm-spaced points: two faces meeting at a convex ridge (x = 0), the
+    # body below. Across the ridge a neighbourhood's centroid lies inside the body, so the
+    # centroid anchor's plane runs below the surface there; "hybrid" puts the planes of the
+    # face-like neighbourhoods (`FineCloud.planar`) through their centroids and the others'
+    # through the points themselves.
+    g = np.arange(-10, 11) * 0.05
+    u, v = np.meshgrid(g, g, indexing="ij")
+    pts = jnp.asarray(np.stack([u.ravel(), v.ravel(), -np.abs(u.ravel())], 1))
+    fines = {}
+    for anchor in ("hybrid", "centroid", "point"):
+        config = jp.Config(fine=jp.FineStage(points=1024, anchor=anchor))
+        fines[anchor] = fine_cloud(pts, jnp.ones(len(pts), bool), config, ((1, 0.0),), jnp.asarray(0.026))
+    hybrid, centroid, point = (fines[a] for a in ("hybrid", "centroid", "point"))
+    ok, face = np.asarray(hybrid.valid), np.asarray(hybrid.planar)
+    P, N = np.asarray(hybrid.points).T, np.asarray(hybrid.normals).T
+    ridge = ok & ~face & (np.abs(P[:, 0]) < 0.01)
+    assert face.sum() > 100 and ridge.sum() > 10
+    np.testing.assert_array_equal(np.asarray(hybrid.offsets)[face], np.asarray(centroid.offsets)[face])
+    np.testing.assert_array_equal(np.asarray(hybrid.offsets)[ok & ~face], np.asarray(point.offsets)[ok & ~face])
+    # Height of each ridge point above its centroid-anchored plane (normal turned upwards).
+    up = np.sign(N[ridge, 2])
+    above = up * (np.sum(N[ridge] * P[ridge], axis=1) - np.asarray(centroid.offsets)[ridge])
+    assert np.all(above > 0.005), above
+    np.testing.assert_allclose(np.asarray(hybrid.offsets)[ridge], np.sum(N[ridge] * P[ridge], axis=1), atol=1e-12)
+
+
 def test_smallest_eigen_matches_eigh_and_flags_undefined_normals():
     # Scatter matrices of 20-point neighbourhoods: planar (noise-free and noisy), a random
     # blob, and degenerate ones (collinear points, one repeated point) that have no normal.

@@ -322,8 +322,9 @@ class Chain(eqx.Module):
 
 # Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 1.52× too small on N5
 # pairs with 1 cm range noise (experiments/nees.py; with the scale the NEES is consistent).
-# Calibrated with `FineStage.anchor` "centroid", that of Config.tracking() and the default;
-# with the planes through the points (`Config.fast()`, `wide()`) the factor is 2.36.
+# Calibrated with `FineStage.anchor` "centroid"; with the planes through the points
+# (`Config.fast()`, `wide()`) the factor is 2.36. The default anchor, "hybrid", takes the
+# centroid on faces and the point across edges; experiments/nees.py has not measured it.
 COVARIANCE_SCALE = 1.52
 
 
