@@ -232,6 +232,10 @@ def test_graph_matching_rounds_give_the_voxel_search_fit(monkeypatch, target, si
 
     (case,) = realistic.make_cases(1, names=(target,), levels=(sigma,))[:1]
     config = sized_config(case.prev, case.curr, jp.Config())
+    # From rest the noisy satellite pair's fit slides along its weakest direction (θ) for more
+    # than the default 20 rounds (measured: still moving after 20, converged within 40, with
+    # either matching); the rounds limit is not what this test compares.
+    config = dataclasses.replace(config, fine=dataclasses.replace(config.fine, rounds=40))
     problem = jp.Problem.build(case.prev, case.curr, config)
     truth = jp.true_displacement(problem.frame, np.eye(3), np.zeros(3), case.rotation, case.translation)
     searches = []  # one entry per round that searched the voxels
@@ -257,9 +261,10 @@ def test_graph_matching_rounds_give_the_voxel_search_fit(monkeypatch, target, si
         assert np.degrees(err[:3]).max() < 0.1 and err[3:].max() < 0.001, err
     assert abs(float(graph.inliers) - float(voxels.inliers)) <= 0.005
     # How far the fit from rest lands from the truth: noise-free within 0.3°; on this satellite
-    # pair with 1 cm noise 0.55° (measured; under 0.3° when the least planar 30 % of the
-    # previous points had no plane, `FineStage.planar_fraction` 0.7; the whole estimate on
-    # this pair, benchmark row satellite σ1 #0, is 0.44° off).
+    # pair with 1 cm noise 0.57° (measured with the hybrid anchor, 0.55° with centroids
+    # everywhere; under 0.3° when the least planar 30 % of the previous points had no plane,
+    # `FineStage.planar_fraction` 0.7). The benchmark's whole estimate of this pair
+    # (satellite σ1 #0) is a false success at b1971dc, 1.08° off.
     to_truth = np.abs(np.asarray(graph.params - truth))
     bound_deg = 0.3 if sigma == 0 else 0.6
     assert np.degrees(to_truth[:3]).max() < bound_deg and to_truth[3:].max() < 0.005, to_truth
