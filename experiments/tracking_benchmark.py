@@ -53,7 +53,14 @@ from _common import RESULTS, write_json
 import jaxpose as jp
 from jaxpose._problem import sized_sequence_config
 from jaxpose.sim import Tumble, simulate_sequence
-from jaxpose.tracking._track import FILTER_UPDATED, Chain, _track_program, chain_estimates, filter_keyframes
+from jaxpose.tracking._track import (
+    FILTER_UPDATED,
+    Chain,
+    _track_program,
+    chain_estimates,
+    chained_motions,
+    filter_keyframes,
+)
 
 FAMILIES = ("n5", "chibis_m", "satellite", "upper_stage", "fragment")
 NOISE_CM = (0.0, 0.5, 1.0, 2.0)
@@ -173,7 +180,7 @@ def chain_of_track(saved: dict) -> Chain:
     with t_0k = points_k − R_0k O_n; other frames' measurements are unused by the filter."""
     R, points, keyframes = saved["rotations"], saved["points"], saved["keyframes"]
     origin = points[0]
-    t = points - np.einsum("kij,j->ki", R, origin)
+    t = np.asarray(chained_motions(R, points)[0])
     R_rel = np.einsum("kij,klj->kil", R, R[keyframes])
     t_rel = t - np.einsum("kij,kj->ki", R_rel, t[keyframes])
     switched = np.zeros(len(R), bool)

@@ -281,6 +281,7 @@ def fine_passes(
     fits = count + turns.shape[0]
     passes = fits + (config.fine.anchor != "point")
     fine = problem.fine
+    exact = exact_surface(fine)
 
     def one_pass(runs, i):
         polish = i == fits
@@ -295,13 +296,7 @@ def fine_passes(
             active = True
         start = jnp.where(polish, best.params, start)
         active = jnp.where(polish, best.planar_rms < _fine.EXACT_RMS, active)
-        exact = exact_surface(fine)
-        surface = eqx.tree_at(
-            lambda f: (f.offsets, f.valid),
-            fine,
-            (jnp.where(polish, exact.offsets, fine.offsets), jnp.where(polish, exact.valid, fine.valid)),
-        )
-        run = fine_refine(problem, config, start, surface, active=active)
+        run = fine_refine(problem, config, start, tree_select(polish, exact, fine), active=active)
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 
     shapes = jax.eval_shape(lambda: fine_refine(problem, config, starts[0]))

@@ -100,7 +100,8 @@ class FineCloud(eqx.Module):
     - `points`: `(3, K)` the selected previous points, structure of arrays, zero padded.
     - `normals`: `(3, K)` unit normals of the planar ones (zero elsewhere).
     - `offsets`: `(K,)`, the plane of point k is {x : normals[:, k]ᵀ x = offsets[k]}; it goes
-      through the point, or through its neighbourhood's centroid (`FineStage.anchor`).
+      through the point, or through its neighbourhood's centroid (`FineStage.anchor`; with
+      "hybrid", the centroid for the `planar` points and the point for the others).
     - `point_offsets`: `(K,)`, the same planes through the points themselves (the exact
       anchor of a noise-free view, used by [`exact_surface`][]).
     - `valid`: `(K,)` mask (selected and among the `FineStage.planar_fraction` most planar).

@@ -93,10 +93,10 @@ def test_the_hybrid_anchor_keeps_face_centroids_and_the_points_across_a_ridge():
     np.testing.assert_array_equal(np.asarray(hybrid.offsets)[face], np.asarray(centroid.offsets)[face])
     np.testing.assert_array_equal(np.asarray(hybrid.offsets)[ok & ~face], np.asarray(point.offsets)[ok & ~face])
     # Height of each ridge point above its centroid-anchored plane (normal turned upwards).
-    up = np.sign(N[ridge, 2])
-    above = up * (np.sum(N[ridge] * P[ridge], axis=1) - np.asarray(centroid.offsets)[ridge])
+    through_points = np.sum(N[ridge] * P[ridge], axis=1)
+    above = np.sign(N[ridge, 2]) * (through_points - np.asarray(centroid.offsets)[ridge])
     assert np.all(above > 0.005), above
-    np.testing.assert_allclose(np.asarray(hybrid.offsets)[ridge], np.sum(N[ridge] * P[ridge], axis=1), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(hybrid.offsets)[ridge], through_points, atol=1e-12)
 
 
 def test_smallest_eigen_matches_eigh_and_flags_undefined_normals():
