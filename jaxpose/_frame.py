@@ -23,13 +23,17 @@ AMBIGUITY_TOL = 1e-6
 """Two inertia eigenvalues closer than this (relative to the largest) make the axes ambiguous."""
 
 FLATNESS_TOL = 1e-6
-"""A scatter eigenvalue below this fraction of the largest counts as zero spread."""
+"""A scatter eigenvalue below this fraction of the largest counts as zero spread. Only a
+collinear cloud (two zero spreads) is flat: a coplanar one (one face of a box seen head-on)
+has three distinct inertia eigenvalues, so its frame is defined (DECISIONS.md: degenerate
+means equal eigenvalues or fewer than 3 non-collinear points), and the face's outline fixes
+the motion within its plane."""
 
 FRAME_OK, FRAME_TOO_FEW_POINTS, FRAME_FLAT, FRAME_AMBIGUOUS = 0, 1, 2, 3
 FRAME_STATUS_TEXT = {
     FRAME_OK: "ok",
     FRAME_TOO_FEW_POINTS: f"fewer than {MIN_POINTS} valid points",
-    FRAME_FLAT: "the points are collinear or coplanar (zero spread along an axis)",
+    FRAME_FLAT: "the points are collinear (zero spread across a line)",
     FRAME_AMBIGUOUS: "two principal spreads are equal, so the plane axes are ambiguous",
 }
 
@@ -43,7 +47,7 @@ class PlaneFrame(eqx.Module):
     - `axes`: G^c_n, `(3, 3)`, columns n1 n2 n3 (least → largest spread) in frame c.
     - `inertia`: eigenvalues of J in descending order (m²).
     - `num_points`: number of valid points used.
-    - `status`: 0 ok, 1 too few points, 2 flat (collinear/coplanar), 3 ambiguous axes;
+    - `status`: 0 ok, 1 too few points, 2 flat (collinear), 3 ambiguous axes;
       see `FRAME_STATUS_TEXT`.
     """
 
@@ -86,8 +90,7 @@ def plane_frame(cloud: Cloud) -> PlaneFrame:
 
     spreads = jnp.linalg.eigvalsh(C)  # ascending, ≥ 0 up to round-off
     scale = jnp.maximum(spreads[2], jnp.finfo(C.dtype).tiny)
-    flat = spreads[1] <= FLATNESS_TOL * scale  # collinear; coplanar is spreads[0]
-    flat = flat | (spreads[0] <= FLATNESS_TOL * scale)
+    flat = spreads[1] <= FLATNESS_TOL * scale  # collinear (a coplanar cloud has spreads[0] = 0 only)
     gaps = jnp.minimum(evals[0] - evals[1], evals[1] - evals[2])
     ambiguous = gaps <= AMBIGUITY_TOL * jnp.maximum(evals[0], jnp.finfo(C.dtype).tiny)
     status = jnp.where(

@@ -138,9 +138,9 @@ def test_vmap_over_candidates_and_problems(paper_clouds, n5_problem):
     "points",
     [
         np.random.default_rng(0).normal(size=(5, 3)),  # too few points
-        np.c_[np.random.default_rng(1).normal(size=(50, 2)), np.zeros(50)],  # coplanar
         np.outer(np.linspace(0, 1, 50), [1.0, 2.0, 3.0]),  # collinear
-        np.random.default_rng(2).normal(size=(200, 3)) * [1.0, 1.0, 0.0] + [0, 0, 1],  # coplanar again
+        np.outer(np.linspace(0, 1, 50), [0.0, 0.0, 1.0]) + [0, 0, 4],  # collinear along the view
+        np.random.default_rng(2).normal(size=(200, 3)) * [1.0, 0.0, 0.0] + [0, 0, 1],  # collinear, scattered
     ],
 )
 def test_degenerate_previous_cloud_raises(paper_clouds, points):
@@ -148,8 +148,16 @@ def test_degenerate_previous_cloud_raises(paper_clouds, points):
         jp.Problem.build(jp.Cloud.from_points(points), paper_clouds["n5", "variant2"])
 
 
+def test_a_coplanar_previous_cloud_has_a_frame():
+    # A face: distinct in-plane spreads, zero across. Its normal is axis n1 (least spread).
+    face = np.c_[np.random.default_rng(1).uniform(-1, 1, (200, 2)) * [0.5, 0.3], np.full(200, 4.0)]
+    frame = jp.plane_frame(jp.Cloud.from_points(face))
+    assert int(frame.status) == 0
+    np.testing.assert_allclose(np.abs(np.asarray(frame.axes)[:, 0]), [0, 0, 1], atol=1e-9)
+
+
 def test_degenerate_cloud_under_jit_sets_status(paper_clouds):
-    flat = jp.Cloud.from_points(np.c_[np.random.default_rng(1).normal(size=(50, 2)), np.zeros(50)])
+    flat = jp.Cloud.from_points(np.outer(np.random.default_rng(1).normal(size=50), [1.0, 2.0, 0.5]) + [0, 0, 4])
     problem = jax.jit(jp.Problem.build)(flat, flat)
     assert int(problem.status) & 1 and int(problem.frame.status) == 2
     assert np.isfinite(float(hard(jnp.zeros(6), problem)))

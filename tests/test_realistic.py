@@ -156,6 +156,23 @@ def test_a_mesh_4_m_across_is_accepted_and_estimated():
     assert angle < 0.1, angle
 
 
+def test_one_face_seen_head_on_is_accepted_and_found():
+    """A camera produces coplanar clouds: N1 centred on the optical axis, face-on, shows its
+    front face alone. The pair is accepted (no ValueError) and the motion found within the
+    realistic benchmark's bounds (1°, 1 cm): the face's outline fixes the turn in its plane."""
+    target, camera = targets.n1(), jp.Camera.camcube2()
+    R0 = np.eye(3)
+    R1 = realistic._axis_angle(np.array([0.3, 1.0, 0.2]), math.radians(3.0))
+    t0, t1 = np.array([0.0, 0.0, 4.0]), np.array([0.02, -0.01, 4.03])
+    prev, curr = jp.simulate(camera, target, R0, t0), jp.simulate(camera, target, R1, t1)
+    normal_spread = np.ptp(np.asarray(prev.compact())[:, 2])
+    assert normal_spread < 1e-4  # the previous cloud is one plane
+    est = jp.estimate(prev, curr, key=jax.random.key(0))
+    case = realistic.Case("n1", 0.0, 0, prev, curr, R1, t1 - R1 @ t0, 3.0)
+    errors = realistic.errors(case, est.rotation, est.translation)
+    assert errors["found"], errors
+
+
 def test_a_close_view_larger_than_the_refine_is_exact():
     """A noise-free N5 view of ≈ 19 000 points (the realistic benchmark's second N5 pair): the
     refine scores 4096 of them (`Refine.points`), and the default call still meets the
