@@ -159,7 +159,7 @@ def test_a_mesh_4_m_across_is_accepted_and_estimated():
 def test_one_face_seen_head_on_is_accepted_and_found():
     """A camera produces coplanar clouds: N1 centred on the optical axis, face-on, shows its
     front face alone. The pair is accepted (no ValueError) and the motion found within the
-    realistic benchmark's bounds (1°, 1 cm): the face's outline fixes the turn in its plane."""
+    realistic benchmark's bounds (< 1°, < 5 cm): the face's outline fixes the turn in its plane."""
     target, camera = targets.n1(), jp.Camera.camcube2()
     R0 = np.eye(3)
     R1 = realistic._axis_angle(np.array([0.3, 1.0, 0.2]), math.radians(3.0))
