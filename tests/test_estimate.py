@@ -91,18 +91,20 @@ def test_a_different_target_is_not_reported_as_success(camera, paper_clouds):
 
 
 def test_degenerate_pair_under_jit_is_flagged_not_success(paper_clouds):
-    flat = jp.Cloud.from_points(np.c_[np.random.default_rng(0).normal(size=(5120, 2)), np.zeros(5120)])
+    # A collinear cloud (a coplanar one has a frame: `test_objective.py`).
+    flat = jp.Cloud.from_points(np.outer(np.random.default_rng(0).normal(size=5120), [1.0, 2.0, 0.5]) + [0, 0, 4])
     # Under jit nothing can raise: the problem is built there (as `estimate` does under a
     # tracer), then the shared compiled `estimate_problem` runs on it.
     problem = jax.jit(lambda a, b: jp.Problem.build(a, b, CONFIG))(flat, flat)
+    assert int(problem.frame.status) == 2
     est = estimate_problem(problem, CONFIG, jax.random.key(0))
     assert int(est.status) == DEGENERATE and not bool(est.success)
     assert np.all(np.isfinite(np.asarray(est.params)))
 
 
 def test_degenerate_pair_raises_at_the_boundary(paper_clouds):
-    flat = jp.Cloud.from_points(np.c_[np.random.default_rng(0).normal(size=(50, 2)), np.zeros(50)])
-    with pytest.raises(ValueError, match="previous cloud"):
+    flat = jp.Cloud.from_points(np.outer(np.random.default_rng(0).normal(size=50), [1.0, 2.0, 0.5]) + [0, 0, 4])
+    with pytest.raises(ValueError, match="previous cloud: the points are collinear"):
         jp.estimate(flat, paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
 
 

@@ -100,7 +100,8 @@ def test_estimate_command_on_files(saved_pair, paper_clouds, monkeypatch, tmp_pa
 @pytest.mark.slow  # 24 s on the 2-core CPU; the boundary checks also run in test_estimate
 def test_estimate_command_rejects_bad_input(saved_pair, tmp_path):
     prev, _ = saved_pair
-    (tmp_path / "flat.csv").write_text("\n".join(f"{i % 7},{i // 7},0" for i in range(60)))
+    # Collinear points: no plane frame (a coplanar cloud has one).
+    (tmp_path / "flat.csv").write_text("\n".join(f"{0.01 * i},{0.02 * i},{4 + 0.005 * i}" for i in range(60)))
     result = CliRunner().invoke(app, ["estimate", str(tmp_path / "flat.csv"), str(prev)])
     assert result.exit_code == 2
     assert "flat" in result.output or "plane frame" in result.output
