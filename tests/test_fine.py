@@ -264,7 +264,7 @@ def test_graph_matching_rounds_give_the_voxel_search_fit(monkeypatch, target, si
     # pair with 1 cm noise 0.57° (measured with the hybrid anchor, 0.55° with centroids
     # everywhere; under 0.3° when the least planar 30 % of the previous points had no plane,
     # `FineStage.planar_fraction` 0.7). The benchmark's whole estimate of this pair
-    # (satellite σ1 #0) is a false success at b1971dc, 1.08° off.
+    # (satellite σ1 #0 in results/realistic.md) is a false success, 1.08° off.
     to_truth = np.abs(np.asarray(graph.params - truth))
     bound_deg = 0.3 if sigma == 0 else 0.6
     assert np.degrees(to_truth[:3]).max() < bound_deg and to_truth[3:].max() < 0.005, to_truth
