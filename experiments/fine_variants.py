@@ -1,7 +1,7 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
 `uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
-[--set anchors|cost|gates|edges] [--seed 0]`
+[--set anchors|cost|gates|edges|density] [--seed 0] [--from-truth]`
 
 `--set anchors` (the default): the planes' anchor (the default "hybrid", centroids everywhere,
 points everywhere), the noise-free polish and the within-the-noise stop. `--set cost`: what the
@@ -10,7 +10,11 @@ stage's cost settings (`FineStage.points`, `steps`, `rounds`, `neighbours`) buy 
 the inlier gate, the robust scale and the planar fraction (docs, Findings: the fine stage's
 gates on two draws of pairs). `--set edges`: the planar fraction, whether the previous points
 at edges and corners keep their planes (docs, Findings: planes at edges and corners). `--seed`
-draws other pairs than the benchmark's (seed 0).
+draws other pairs than the benchmark's (seed 0). `--set density`: the previous side thinned to
+`FineStage.points` (the default) or kept whole (`FineStage.prev_points`; docs, Findings: a
+dense previous side). `--from-truth` runs the fine stage alone from each pair's true motion
+(`fine_refine`), so that the errors are those of the fine objective's own minimum; its
+"success" then counts the converged fits.
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
 one compiled program per variant (capacities sized once for all pairs, so times are those of
@@ -33,6 +37,8 @@ import jax
 import jaxpose as jp
 from jaxpose import _fine
 from jaxpose._estimate import _build_and_estimate
+from jaxpose._fine import fine_refine
+from jaxpose._poses import displacement_from_motion, motion_from_displacement
 from jaxpose._problem import sized_batch_config
 from jaxpose.evaluation import realistic
 
@@ -60,6 +66,26 @@ def jaxpose_rows(cases, config):
         est, _, _ = jax.block_until_ready(run(case.prev, case.curr, config, jax.random.fold_in(jax.random.key(0), i)))
         ms = 1e3 * (time.perf_counter() - t0)
         rows.append({**realistic.errors(case, est.rotation, est.translation), "ms": ms, "status": int(est.status)})
+    return rows, compile_s
+
+
+def truth_rows(cases, config):
+    """The fine stage alone from each case's true motion (`fine_refine`); status 0 when it
+    converged. The compile time apart."""
+    jax.clear_caches()
+    config = sized_batch_config([(c.prev, c.curr) for c in cases], config)
+    fit = eqx.filter_jit(fine_refine)
+    rows, compile_s = [], 0.0
+    for case in cases:
+        problem = jp.Problem.build(case.prev, case.curr, config)
+        frame = problem.frame
+        truth = displacement_from_motion(frame.origin, frame.axes, case.rotation, case.translation)
+        t0 = time.perf_counter()
+        result = jax.block_until_ready(fit(problem, config, truth.astype(problem.d.dtype)))
+        ms = 1e3 * (time.perf_counter() - t0)
+        compile_s = compile_s or ms / 1e3
+        R, t = motion_from_displacement(frame.origin, frame.axes, result.params)
+        rows.append({**realistic.errors(case, R, t), "ms": ms, "status": int(~result.converged)})
     return rows, compile_s
 
 
@@ -93,12 +119,18 @@ def fine_with(config, name: str, value):
     return dataclasses.replace(config.fine, **{name: value})
 
 
+def replace_fine(config, **changes):
+    """`config` with `config.fine` changed."""
+    return dataclasses.replace(config, fine=dataclasses.replace(config.fine, **changes))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--levels", default="0,0.5,1,2")
-    parser.add_argument("--set", default="anchors", choices=("anchors", "cost", "gates", "edges"))
+    parser.add_argument("--set", default="anchors", choices=("anchors", "cost", "gates", "edges", "density"))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--from-truth", action="store_true")
     args = parser.parse_args()
     levels = tuple(float(x) for x in args.levels.split(","))
     cases = realistic.make_cases(pairs=args.pairs, levels=levels, seed=args.seed)
@@ -138,12 +170,18 @@ def main():
             )
             for value in (1.0, 0.85, 0.7)
         ]
+    if args.set == "density":
+        variants = [
+            ("default (previous side thinned to FineStage.points)", default, {}),
+            ("FineStage(prev_points=2**20): every previous point", replace_fine(default, prev_points=2**20), {}),
+        ]
+    rows_of = truth_rows if args.from_truth else jaxpose_rows
     for name, config, constants in variants:
         saved = {k: getattr(_fine, k) for k in constants}
         for k, v in constants.items():
             setattr(_fine, k, v)
         try:
-            rows, compile_s = jaxpose_rows(cases, config)
+            rows, compile_s = rows_of(cases, config)
         finally:
             for k, v in saved.items():
                 setattr(_fine, k, v)

@@ -8,14 +8,15 @@ surface (the default: slabs of infinite width) or, as the method's data reductio
 points near the cutting planes:
 
 - previous side (built once, in [`jaxpose.Problem.build`][]): the previous points within
-  `FineStage.prev_slab`·d of a cutting plane, in frame n, each with the normal of a plane fitted to
+  `FineStage.prev_slab`·d of a cutting plane, in frame n, thinned evenly to
+  `FineStage.prev_points` (by default `FineStage.points`), each with the normal of a plane fitted to
   its `FineStage.neighbours` nearest such points (the direction of least scatter); the
   `FineStage.planar_fraction` most planar neighbourhoods (smallest / middle scatter
   eigenvalue) keep their point: all of them by default, edges and corners included, whose
   planes of least scatter hold the slides along the faces; `Config.paper()` drops the
   least planar 30 %;
 - current side (chosen once, at the start p₀): the current points within `FineStage.curr_slab`·d
-  of a cutting plane of frame ν(p₀);
+  of a cutting plane of frame ν(p₀), thinned evenly to `FineStage.points`;
 - residual of current point i at p: nᵀ(qᵢ(p) − a), with qᵢ(p) its coordinates in frame ν
   and (a, n) the nearest previous point and its normal — zero where the moved surfaces
   coincide; with `FineStage.anchor` "hybrid" (the default) the plane of a face-like
@@ -231,8 +232,8 @@ def neighbourhood_planes(
 
 def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Config, planes, d) -> FineCloud:
     """The previous side of the fine stage from the previous points in frame n (rows)."""
-    stage = FineStage(points=1) if config.fine is None else config.fine  # None: one empty slot
-    K = stage.points
+    stage = FineStage(points=1, prev_points=1) if config.fine is None else config.fine  # None: one empty slot
+    K = stage.points if stage.prev_points is None else min(stage.prev_points, prev_n.shape[0])
     A = jnp.where(valid[:, None], prev_n, 0.0).T
     near = valid & (slab_distance(A, planes, d) <= stage.prev_slab * d)
     idx, live = spread_subset(near, K)

@@ -177,6 +177,7 @@ def test_far_or_huge_clouds_name_the_problem(scale, offset, dtype, match):
         (jp.FineStage, "anchor", "edge"),
         (jp.FineStage, "planar_fraction", 0.0),
         (jp.FineStage, "inlier", -0.01),
+        (jp.FineStage, "prev_points", 0),
         (jp.Capacities, "max_points", 2),
         (jp.Thresholds, "min_score", 1.2),
         (jp.Thresholds, "max_range", -1.0),
