@@ -71,7 +71,7 @@ def jaxpose_rows(cases, config):
 
 def truth_rows(cases, config):
     """The fine stage alone from each case's true motion (`fine_refine`); status 0 when it
-    converged. The compile time apart."""
+    converged. The first call's time, compilation included, is reported as the compile time."""
     jax.clear_caches()
     config = sized_batch_config([(c.prev, c.curr) for c in cases], config)
     fit = eqx.filter_jit(fine_refine)

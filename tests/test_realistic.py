@@ -195,7 +195,7 @@ def test_jit_users_size_a_config_from_the_camera_and_extent():
 
 def test_a_dense_previous_side_moves_the_fine_minimum_towards_the_truth():
     """`FineStage.prev_points` beyond `points` keeps more of the previous cloud: on a noisy
-    upper stage (the realistic benchmark's σ 0.5 cm pair 1, ≈ 11,000 points a cloud) the fine
+    upper stage (σ 0.5 cm, ≈ 11,000 points a cloud; `make_cases`' second draw at that level) the fine
     stage's own minimum, reached from the true motion, lies within 0.1° and 0.1 cm of it with
     every previous point, and more than twice as far in rotation with 4096 evenly thinned
     ones (the default): a coarser previous side gives coarser matches and neighbourhood
