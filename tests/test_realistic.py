@@ -193,6 +193,7 @@ def test_jit_users_size_a_config_from_the_camera_and_extent():
     assert config.capacities.max_points <= 204 * 204 and config.capacities.max_cells >= 2 * math.pi * 5.0 / 0.026
 
 
+@pytest.mark.slow
 def test_a_dense_previous_side_moves_the_fine_minimum_towards_the_truth():
     """`FineStage.prev_points` beyond `points` keeps more of the previous cloud: on a noisy
     upper stage (σ 0.5 cm, ≈ 11,000 points a cloud; `make_cases`' second draw at that level) the fine
