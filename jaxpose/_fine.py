@@ -232,7 +232,7 @@ def neighbourhood_planes(
 
 def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Config, planes, d) -> FineCloud:
     """The previous side of the fine stage from the previous points in frame n (rows)."""
-    stage = FineStage(points=1, prev_points=1) if config.fine is None else config.fine  # None: one empty slot
+    stage = FineStage(points=1) if config.fine is None else config.fine  # None: one empty slot
     K = stage.points if stage.prev_points is None else min(stage.prev_points, prev_n.shape[0])
     A = jnp.where(valid[:, None], prev_n, 0.0).T
     near = valid & (slab_distance(A, planes, d) <= stage.prev_slab * d)
