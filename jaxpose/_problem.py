@@ -224,10 +224,10 @@ def _filled(config: Config, points: int, grid: int, selected: int) -> Config:
     return config.with_capacities(**fill)
 
 
-@eqx.filter_jit
-def _pattern_sizes(prev: Cloud, config: Config):
+def _sizes_of_patterns(prev: Cloud, config: Config):
     """The previous cloud's valid count, its largest pattern grid (cells per axis, before the
-    cap) and the most points any pattern selects, at `config.patterns.d`, for [`sized_config`][]."""
+    cap) and the most points any pattern selects, at `config.patterns.d`, for [`sized_config`][]
+    (compiled as `_pattern_sizes`)."""
     frame = plane_frame(prev)
     A = jnp.where(prev.valid[:, None], frame.to_frame(prev.masked_points), 0.0)
     d = jnp.asarray(config.patterns.d, A.dtype)
@@ -239,6 +239,11 @@ def _pattern_sizes(prev: Cloud, config: Config):
         jnp.max(jnp.stack([jnp.max(jnp.stack(g.size)) for g in grids])),
         jnp.max(jnp.stack([jnp.sum(g.selected) for g in grids])),
     )
+
+
+_pattern_sizes = BoundedJit(_sizes_of_patterns)
+"""One compiled program per cloud size (kept on disk with `enable_compile_cache`, so that a
+new process sizes its first pair without tracing it)."""
 
 
 def check_range(prev: Cloud, curr: Cloud, config: Config) -> None:

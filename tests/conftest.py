@@ -14,12 +14,16 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 # One persistent compilation cache per test session, empty at its start, so the notebooks'
 # kernels (which inherit the environment) reuse each other's compiles.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp(prefix="jaxpose-test-xla-"))
+# The CLI's `enable_compile_cache` (tests invoke the CLI in process) keeps its program files and
+# XLA cache in a folder of the test session's, not in the user's ~/.cache/jaxpose.
+os.environ.setdefault("JAXPOSE_CACHE", tempfile.mkdtemp(prefix="jaxpose-test-cache-"))
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import jaxpose as jp  # noqa: E402
+from jaxpose import _programs  # noqa: E402
 from jaxpose._programs import memory_mappings, release_all  # noqa: E402
 from jaxpose.sim import PAPER_T, paper_pose  # noqa: E402
 
@@ -76,3 +80,14 @@ def release_compiled_programs():
     yield
     if memory_mappings() > MAX_MAPPINGS:
         release_all()
+
+
+@pytest.fixture(autouse=True)
+def restore_compile_cache():
+    """The CLI's commands, invoked in process by the tests, turn on the compile cache and its
+    program files (`enable_compile_cache`); each test's successors start as they would have
+    without it, so which tests run through program files does not depend on the scheduling."""
+    before = list(_programs._EXPORTS), jax.config.jax_compilation_cache_dir
+    yield
+    _programs._EXPORTS[:] = before[0]
+    jax.config.update("jax_compilation_cache_dir", before[1])

@@ -1,11 +1,14 @@
 """The public path's bounded cache of compiled programs (jaxpose._programs)."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
+import jaxpose
 import jaxpose as jp
-from jaxpose._programs import BoundedJit, clear_programs, memory_mappings
+from jaxpose._programs import BoundedJit, clear_programs, disable_program_files, memory_mappings, program_name
 
 
 def _scaled_sum(x, scale: float):
@@ -36,12 +39,81 @@ def test_memory_mappings_are_counted_on_linux():
     assert memory_mappings() >= 0
 
 
-def test_enable_compile_cache_sets_the_folder_and_the_threshold(tmp_path):
+def test_enable_compile_cache_sets_the_folders_and_the_threshold(program_files):
+    assert jax.config.jax_compilation_cache_dir == str(program_files.parent / "xla")
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == jaxpose._programs.MIN_COMPILE_S
+    assert jaxpose._programs._EXPORTS == [program_files]
+
+
+class _Summary(eqx.Module):
+    """An output with a custom pytree node and a static field, as `Estimate` has."""
+
+    total: jax.Array
+    label: str = eqx.field(static=True)
+
+
+_TRACES: list[int] = []
+
+
+def _summarise(x, scale: float) -> _Summary:
+    _TRACES.append(x.shape[0])  # runs once per trace, never when a program file is loaded
+    return _Summary(jnp.sum(x) * scale, label=f"scaled by {scale}")
+
+
+@pytest.fixture
+def program_files(tmp_path):
+    """Program files in a fresh folder for the test; off again afterwards."""
     before = jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs
-    try:
-        assert jp.enable_compile_cache(tmp_path / "xla") == tmp_path / "xla"
-        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
-        assert jax.config.jax_persistent_cache_min_compile_time_secs == 1.0
-    finally:
-        jax.config.update("jax_compilation_cache_dir", before[0])
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+    jp.enable_compile_cache(tmp_path)
+    yield tmp_path / "programs"
+    disable_program_files()
+    jax.config.update("jax_compilation_cache_dir", before[0])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+
+
+def test_a_new_cache_loads_the_program_file_without_tracing(program_files):
+    x = jnp.arange(5.0)
+    _TRACES.clear()
+    first = BoundedJit(_summarise)(x, 2.0)
+    assert _TRACES == [5]
+    assert len(list(program_files.glob("summarise-*.stablehlo"))) == 1
+    second = BoundedJit(_summarise)(x, 2.0)  # a new in-memory cache, as in a new process
+    assert _TRACES == [5]
+    assert second.label == first.label == "scaled by 2.0"
+    assert float(second.total) == float(first.total) == 20.0
+
+
+def test_other_static_values_or_shapes_are_other_files(program_files):
+    cached = BoundedJit(_summarise)
+    outs = [cached(jnp.arange(n, dtype=float), s) for n, s in ((5, 2.0), (5, 3.0), (4, 2.0))]
+    assert [float(o.total) for o in outs] == [20.0, 30.0, 12.0]
+    assert len(list(program_files.glob("summarise-*.stablehlo"))) == 3
+
+
+def test_an_unreadable_program_file_is_traced_again_and_replaced(program_files):
+    x = jnp.arange(3.0)
+    BoundedJit(_summarise)(x, 1.0)
+    (path,) = program_files.glob("summarise-*.stablehlo")
+    path.write_bytes(b"not a program")
+    _TRACES.clear()
+    out = BoundedJit(_summarise)(x, 1.0)
+    assert _TRACES == [3] and float(out.total) == 3.0
+    _TRACES.clear()
+    assert float(BoundedJit(_summarise)(x, 1.0).total) == 3.0
+    assert _TRACES == []  # the rewritten file loads
+
+
+def test_static_arguments_pickle_cannot_write_compile_without_a_file(program_files):
+    cached = BoundedJit(lambda x, f: f(jnp.sum(x)))
+    assert float(cached(jnp.arange(4.0), lambda s: s * 2)) == 12.0
+    assert not list(program_files.glob("*.stablehlo"))
+
+
+def test_program_names_depend_on_the_static_arguments_and_the_shapes():
+    leaves, tree = jax.tree.flatten((jnp.zeros(3),))
+    name = program_name(_summarise, (None, 2.0), tree, leaves)
+    assert name == program_name(_summarise, (None, 2.0), tree, leaves)
+    assert name != program_name(_summarise, (None, 2.5), tree, leaves)
+    other_leaves, other_tree = jax.tree.flatten((jnp.zeros(4),))
+    assert name != program_name(_summarise, (None, 2.0), other_tree, other_leaves)
+    assert name.startswith("summarise-")
