@@ -39,6 +39,7 @@ from ._estimate import Estimate as Estimate
 from ._estimate import Hypotheses as Hypotheses
 from ._estimate import Status as Status
 from ._estimate import estimate as estimate
+from ._estimate_batch import estimate_batch as estimate_batch
 from ._frame import PlaneFrame as PlaneFrame
 from ._frame import plane_frame as plane_frame
 from ._io import load_cloud as load_cloud
@@ -100,6 +101,7 @@ __all__ = [
     "displacement_from_motion",
     "enable_compile_cache",
     "estimate",
+    "estimate_batch",
     "hard_score",
     "identify",
     "load_cloud",

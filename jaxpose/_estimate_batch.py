@@ -1,0 +1,111 @@
+"""`estimate_batch`: many pairs in one compiled call, one pair after another.
+
+`jax.vmap(estimate)` runs a batch in lockstep: a `lax.cond` whose condition differs between
+pairs runs both branches for every pair (the turned fine runs, the noise-free polish), and a
+loop runs until the batch's slowest pair is done. On a CPU that costs more than it saves
+(docs/performance.md, "Batches"). `estimate_batch` sizes one config from all the pairs,
+then runs them under `lax.map` in one compiled program per capacity bucket, so each pair
+takes only its own branches and loop counts and the batch pays one dispatch. `chunk` > 1
+vmaps that many pairs at a time inside the map, for accelerators.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+from jaxtyping import Array, Key
+
+from ._cloud import Cloud
+from ._config import Config
+from ._estimate import GROW_TRIES, Estimate, _estimate_pair
+from ._problem import check_range, grow_capacities, raise_for_codes, sized_batch_config
+from ._programs import BoundedJit
+
+
+def _pair(clouds: Cloud, i: int) -> Cloud:
+    return Cloud(clouds.points[i], clouds.valid[i])
+
+
+def _keys(key: Key[Array, ""] | Key[Array, " B"], count: int) -> Key[Array, " B"]:
+    """One key per pair: `key` split `count` ways when it is a single key, else as given."""
+    if key.shape == ():
+        return jax.random.split(key, count)
+    if key.shape != (count,):
+        raise ValueError(f"key: one key or {count} keys (one per pair), got shape {key.shape}.")
+    return key
+
+
+def _map_pairs(prev: Cloud, curr: Cloud, config: Config, keys: Key[Array, " B"], chunk: int):
+    def one(args):
+        p, c, k = args
+        # The single pair's program, nested (a vmapped build inlined into the caller's program
+        # crashed XLA:CPU's compiler, see `BoundedJit`).
+        return _estimate_pair(Cloud(*p), Cloud(*c), config, k)
+
+    xs = ((prev.points, prev.valid), (curr.points, curr.valid), keys)
+    return jax.lax.map(one, xs, batch_size=chunk if chunk > 1 else None)
+
+
+_estimate_pairs = BoundedJit(_map_pairs)
+"""One compiled program per capacity bucket, batch size and `chunk` (see `jaxpose._programs`)."""
+
+
+def estimate_batch(
+    prev: Cloud,
+    curr: Cloud,
+    config: Config | None = None,
+    *,
+    key: Key[Array, ""] | Key[Array, " B"],
+    chunk: int = 1,
+) -> Estimate:
+    """[`estimate`][jaxpose.estimate] for B pairs in one compiled call.
+
+    **Arguments:**
+
+    - `prev`, `curr`: [`jaxpose.Cloud`][]s with a leading batch axis (points `(B, N, 3)` and
+      `(B, M, 3)`, camera frame, metres; `valid` `(B, N)` and `(B, M)`): pair i is
+      `(prev[i], curr[i])`.
+    - `config`: a [`jaxpose.Config`][] (default `Config()`); capacities left at None are
+      sized from all the pairs, as `estimate` sizes them from one.
+    - `key`: one PRNG key, split into one per pair, or B keys. Pair i with key k gives what
+      `estimate(prev[i], curr[i], config, key=k)` gives with the batch's capacities.
+    - `chunk`: pairs run together under `vmap` inside the sequential map (1, the default,
+      is fastest on a CPU).
+
+    **Returns:**
+
+    An [`Estimate`][jaxpose.Estimate] whose fields have a leading axis B. Python boundary
+    only (under `jax.jit`, call `estimate` under `jax.lax.map` or `jax.vmap`). A pair that
+    `estimate` would refuse raises a ValueError that names the pair's index.
+    """
+    config = Config() if config is None else config
+    if prev.points.ndim != 3 or curr.points.ndim != 3 or prev.points.shape[0] != curr.points.shape[0]:
+        raise ValueError(
+            "estimate_batch: prev and curr need a leading batch axis of the same length "
+            f"(points (B, N, 3)), got {prev.points.shape} and {curr.points.shape}."
+        )
+    if chunk < 1:
+        raise ValueError(f"estimate_batch: chunk must be ≥ 1, got {chunk}.")
+    count = prev.points.shape[0]
+    pairs = [(_pair(prev, i), _pair(curr, i)) for i in range(count)]
+    for i, (p, c) in enumerate(pairs):
+        p.check(f"pair {i}: previous cloud")
+        c.check(f"pair {i}: current cloud")
+        check_range(p, c, config)
+    keys = _keys(key, count)
+    config = sized_batch_config(pairs, config)
+    for _ in range(GROW_TRIES):
+        est, status, frame_status = _estimate_pairs(prev, curr, config, keys, chunk)
+        grown = grow_capacities(config, int(np.bitwise_or.reduce(np.asarray(status))))
+        if grown is None:
+            break
+        config = grown
+    for i, (code, frame_code) in enumerate(zip(np.asarray(status), np.asarray(frame_status), strict=True)):
+        try:
+            raise_for_codes(int(code), int(frame_code))
+        except ValueError as err:
+            raise ValueError(f"pair {i}: {err}") from None
+    return est
+
+
+__all__ = ["estimate_batch"]
