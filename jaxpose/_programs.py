@@ -123,7 +123,8 @@ def source_digest() -> str:
 def program_name(fn: Callable, static, intree, leaves) -> str:
     """The file name of `fn`'s program for these arguments: a hash of the function, the
     pickled static arguments, the argument tree, shapes and dtypes, JAX's version, backend and
-    tracing flags, and jaxpose's source. Raises if the static arguments cannot be pickled."""
+    tracing flags (x64, matmul precision, rank and dtype promotion), and jaxpose's source.
+    Raises if the static arguments cannot be pickled."""
     digest = hashlib.sha256()
     parts = (
         fn.__module__,
@@ -133,6 +134,8 @@ def program_name(fn: Callable, static, intree, leaves) -> str:
         jax.default_backend(),
         bool(jax.config.jax_enable_x64),
         str(jax.config.jax_default_matmul_precision),
+        str(jax.config.jax_numpy_rank_promotion),
+        str(jax.config.jax_numpy_dtype_promotion),
         str(intree),
         tuple((x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves),
     )
@@ -196,7 +199,10 @@ def exported_program(fn: Callable, static, dynamic, folder: Path) -> Callable | 
             loaded = _export(fn, static, intree, leaves)
         except Exception:  # what jax.export refuses (host callbacks, say): the jit path
             return None
-        _save(path, *loaded)
+        try:
+            _save(path, *loaded)
+        except OSError:  # a folder that cannot be written: the program still runs
+            pass
     exported, out_tree = loaded
     try:
         compiled = jax.jit(exported.call).lower(*leaves).compile()

@@ -117,3 +117,20 @@ def test_program_names_depend_on_the_static_arguments_and_the_shapes():
     other_leaves, other_tree = jax.tree.flatten((jnp.zeros(4),))
     assert name != program_name(_summarise, (None, 2.0), other_tree, other_leaves)
     assert name.startswith("summarise-")
+
+
+def test_a_folder_that_cannot_be_written_still_gives_the_result(program_files):
+    program_files.parent.mkdir(parents=True, exist_ok=True)
+    program_files.write_text("a file where the folder should be")
+    assert float(BoundedJit(_summarise)(jnp.arange(4.0), 1.0).total) == 6.0
+
+
+def test_program_names_depend_on_the_tracing_flags():
+    leaves, tree = jax.tree.flatten((jnp.zeros(3),))
+    name = program_name(_summarise, (None, 2.0), tree, leaves)
+    before = jax.config.jax_numpy_rank_promotion
+    try:
+        jax.config.update("jax_numpy_rank_promotion", "warn" if before != "warn" else "allow")
+        assert program_name(_summarise, (None, 2.0), tree, leaves) != name
+    finally:
+        jax.config.update("jax_numpy_rank_promotion", before)
