@@ -22,6 +22,10 @@ def batch(paper_clouds):
     return prev, curr
 
 
+# The two tests below compile the batch program (≈ 50 s in one process): `-m slow`, like the
+# other checks of an API beside the method (docs/testing.md); the default run keeps the checks
+# at the boundary.
+@pytest.mark.slow
 def test_each_pair_gets_what_estimate_gives_it_with_the_batchs_capacities(batch):
     prev, curr = batch
     config = jp.Config.fast()
@@ -36,6 +40,7 @@ def test_each_pair_gets_what_estimate_gives_it_with_the_batchs_capacities(batch)
         np.testing.assert_allclose(np.asarray(est.rotation[i]), np.asarray(one.rotation), atol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_pair_that_estimate_refuses_is_named(batch):
     # Pair 2's current cloud keeps 5 of its points: the capacities (and so the compiled
     # program) are those of the test above, and the program reports too few current points.
