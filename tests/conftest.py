@@ -87,7 +87,12 @@ def restore_compile_cache():
     """The CLI's commands, invoked in process by the tests, turn on the compile cache and its
     program files (`enable_compile_cache`); each test's successors start as they would have
     without it, so which tests run through program files does not depend on the scheduling."""
-    before = list(_programs._EXPORTS), jax.config.jax_compilation_cache_dir
+    before = (
+        list(_programs._EXPORTS),
+        jax.config.jax_compilation_cache_dir,
+        jax.config.jax_persistent_cache_min_compile_time_secs,
+    )
     yield
     _programs._EXPORTS[:] = before[0]
     jax.config.update("jax_compilation_cache_dir", before[1])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", before[2])
