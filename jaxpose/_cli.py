@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Annotated
 
@@ -292,18 +293,14 @@ def _preset(name: str, **capacities: int):
     return presets[name](capacities=Capacities(**capacities))
 
 
-_ANGLES: list = []
-
-
+@functools.cache
 def _compiled_angles():
     """`jaxpose.angles` as one compiled program (a `BoundedJit`, so on disk with the compile
     cache), made on first use: the CLI imports JAX only when a command runs."""
-    if not _ANGLES:
-        from ._programs import BoundedJit
-        from ._rotations import angles
+    from ._programs import BoundedJit
+    from ._rotations import angles
 
-        _ANGLES.append(BoundedJit(angles))
-    return _ANGLES[0]
+    return BoundedJit(angles)
 
 
 def _enable_compile_cache() -> None:

@@ -44,12 +44,18 @@ class Cloud(eqx.Module):
         _check_arrays(np.asarray(self.points), np.asarray(self.valid), name)
 
     @property
-    def masked_points(self) -> Float[Array, "N 3"]:
+    def masked_points(self) -> Float[Array, "*batch N 3"]:
         """`points` as floats with the invalid rows zeroed, so NaN or inf that a sensor left
         in missing rows can never leak into sums (works under jit)."""
         floating = jnp.issubdtype(self.points.dtype, jnp.floating)
         dtype = self.points.dtype if floating else jnp.result_type(float)
-        return jnp.where(self.valid[:, None], self.points, 0).astype(dtype)
+        return jnp.where(self.valid[..., None], self.points, 0).astype(dtype)
+
+    def floating(self) -> Cloud:
+        """This cloud with `points` as `masked_points` (floats, invalid rows zeroed): what the
+        Python boundary passes on, so that integer points reuse the float program instead of
+        compiling one of their own, and no NaN of an invalid row enters it."""
+        return Cloud(self.masked_points, self.valid)
 
     @property
     def num_valid(self) -> Array:

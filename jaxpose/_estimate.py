@@ -21,7 +21,7 @@ from ._fine import FineResult, exact_surface, fine_refine
 from ._frame import PlaneFrame
 from ._objective import hard_score, soft_score
 from ._poses import motion_from_displacement
-from ._problem import Problem, _build, check_range, grow_capacities, raise_for_codes, sized_config
+from ._problem import Problem, _build, check_range, raise_for_codes, run_growing, sized_config
 from ._programs import BoundedJit
 from ._rotations import angles, rotation, rotation_angle
 from ._search import GlobalResult, LocalResult, box_scale, local_refine, restarted_search
@@ -461,20 +461,11 @@ def estimate(prev: Cloud, curr: Cloud, config: Config | None = None, *, key: PRN
     prev.check("previous cloud")
     curr.check("current cloud")
     check_range(prev, curr, config)
+    prev, curr = prev.floating(), curr.floating()
     config = sized_config(prev, curr, config)
-    for _ in range(GROW_TRIES):
-        est, status, frame_status = _estimate_pair(prev, curr, config, key)
-        grown = grow_capacities(config, int(status))
-        if grown is None:
-            break
-        config = grown
+    est, status, frame_status = run_growing(lambda grown: _estimate_pair(prev, curr, grown, key), config)
     raise_for_codes(int(status), int(frame_status))
     return est
-
-
-GROW_TRIES = 4
-"""Compiled calls `estimate` may make at the Python boundary: a capacity that the sizing
-missed (a rounding at the coarse level) is grown and the pair run again."""
 
 
 def _build_and_estimate(prev: Cloud, curr: Cloud, config: Config, key: PRNGKeyArray):

@@ -17,8 +17,8 @@ from jaxtyping import Array, Key
 
 from ._cloud import Cloud
 from ._config import Config
-from ._estimate import GROW_TRIES, Estimate, _estimate_pair
-from ._problem import check_range, grow_capacities, raise_for_codes, sized_batch_config
+from ._estimate import Estimate, _estimate_pair
+from ._problem import check_range, raise_for_codes, run_growing, sized_batch_config
 from ._programs import BoundedJit
 
 
@@ -93,13 +93,9 @@ def estimate_batch(
         c.check(f"pair {i}: current cloud")
         check_range(p, c, config)
     keys = _keys(key, count)
+    prev, curr = prev.floating(), curr.floating()
     config = sized_batch_config(pairs, config)
-    for _ in range(GROW_TRIES):
-        est, status, frame_status = _estimate_pairs(prev, curr, config, keys, chunk)
-        grown = grow_capacities(config, int(np.bitwise_or.reduce(np.asarray(status))))
-        if grown is None:
-            break
-        config = grown
+    est, status, frame_status = run_growing(lambda grown: _estimate_pairs(prev, curr, grown, keys, chunk), config)
     for i, (code, frame_code) in enumerate(zip(np.asarray(status), np.asarray(frame_status), strict=True)):
         try:
             raise_for_codes(int(code), int(frame_code))

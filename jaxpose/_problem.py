@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import equinox as eqx
@@ -30,7 +30,7 @@ from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
 from ._fine import FineCloud, fine_cloud
-from ._frame import FRAME_STATUS_TEXT, PlaneFrame, plane_frame
+from ._frame import FRAME_STATUS_TEXT, MIN_POINTS, PlaneFrame, plane_frame
 from ._neighbours import spread_subset
 from ._programs import BoundedJit
 
@@ -148,15 +148,11 @@ class Problem(eqx.Module):
             prev.check("previous cloud")
             curr.check("current cloud")
             check_range(prev, curr, config)
+            prev, curr = prev.floating(), curr.floating()
             config = sized_config(prev, curr, config)
         else:
             config = config.with_jit_capacities(prev.points.shape[-2], curr.points.shape[-2])
-        for _ in range(3):
-            problem = build_problem(prev, curr, config)
-            grown = grow_capacities(config, int(problem.status)) if is_concrete(problem) else None
-            if grown is None:
-                break
-            config = grown
+        problem = run_growing(lambda grown: _with_status(build_problem(prev, curr, grown)), config)[0]
         if is_concrete(problem):
             raise_for_status(problem)
         return problem
@@ -186,9 +182,16 @@ def sized_config(prev: Cloud, curr: Cloud, config: Config) -> Config:
     """`config` with every capacity left at None sized from the clouds (Python boundary only):
     the larger valid count for `max_points` and `max_prev_points`, the largest previous pattern's
     grid for `grid_cells` and its selected points (an upper bound of its filled cells) for
-    `max_cells`, each rounded up by [`bucket`][]. Capacities the config sets are kept."""
-    n_prev, grid, selected = (int(x) for x in _pattern_sizes(prev, config))
+    `max_cells`, each rounded up by [`bucket`][]. Capacities the config sets are kept.
+
+    A pair the build would refuse for its plane frame, or for a current cloud of fewer than
+    `MIN_POINTS` valid points, raises its ValueError here, before the pair's program compiles."""
+    n_prev, grid, selected, frame_status = (int(x) for x in _pattern_sizes(prev, config))
     n_curr = int(np.sum(np.asarray(curr.valid)))
+    if frame_status:
+        raise_for_codes(PROBLEM_FRAME, frame_status)
+    if n_curr < MIN_POINTS:
+        raise_for_codes(PROBLEM_FEW_CURRENT, 0)
     return _filled(config, max(n_prev, n_curr), grid, selected)
 
 
@@ -197,7 +200,7 @@ def sized_sequence_config(clouds: Cloud, config: Config) -> Config:
     previous cloud of a pair (a tracker's keyframe) and any the current one: the largest valid
     count, pattern grid and pattern selection over the frames, rounded as [`sized_config`][].
     Python boundary only."""
-    counts, grids, selected = eqx.filter_vmap(lambda c: _pattern_sizes(c, config))(clouds)
+    counts, grids, selected, _ = eqx.filter_vmap(lambda c: _pattern_sizes(c, config))(clouds)
     return _filled(config, int(jnp.max(counts)), int(jnp.max(grids)), int(jnp.max(selected)))
 
 
@@ -205,7 +208,7 @@ def sized_batch_config(pairs: Sequence[tuple[Cloud, Cloud]], config: Config) -> 
     """`config` sized for a batch of (previous, current) pairs that run under one compiled
     program (a vmapped or sharded batch): the largest valid count, pattern grid and pattern
     selection over the pairs, rounded as [`sized_config`][]. Python boundary only."""
-    sizes = [tuple(int(x) for x in _pattern_sizes(prev, config)) for prev, _ in pairs]
+    sizes = [tuple(int(x) for x in _pattern_sizes(prev, config))[:3] for prev, _ in pairs]
     counts = [n for n, _, _ in sizes] + [int(np.sum(np.asarray(curr.valid))) for _, curr in pairs]
     return _filled(config, max(counts), max(g for _, g, _ in sizes), max(s for _, _, s in sizes))
 
@@ -226,8 +229,8 @@ def _filled(config: Config, points: int, grid: int, selected: int) -> Config:
 
 def _sizes_of_patterns(prev: Cloud, config: Config):
     """The previous cloud's valid count, its largest pattern grid (cells per axis, before the
-    cap) and the most points any pattern selects, at `config.patterns.d`, for [`sized_config`][]
-    (compiled as `_pattern_sizes`)."""
+    cap), the most points any pattern selects, at `config.patterns.d`, and its plane frame's
+    status, for [`sized_config`][] (compiled as `_pattern_sizes`)."""
     frame = plane_frame(prev)
     A = jnp.where(prev.valid[:, None], frame.to_frame(prev.masked_points), 0.0)
     d = jnp.asarray(config.patterns.d, A.dtype)
@@ -238,6 +241,7 @@ def _sizes_of_patterns(prev: Cloud, config: Config):
         jnp.sum(prev.valid),
         jnp.max(jnp.stack([jnp.max(jnp.stack(g.size)) for g in grids])),
         jnp.max(jnp.stack([jnp.sum(g.selected) for g in grids])),
+        frame.status,
     )
 
 
@@ -283,6 +287,33 @@ def grow_capacities(config: Config, status: int) -> Config | None:
     }
     fields = {name: 2 * getattr(config.capacities, name) for bit, name in grow.items() if status & bit}
     return dataclasses.replace(config, capacities=dataclasses.replace(config.capacities, **fields)) if fields else None
+
+
+GROW_TRIES = 4
+"""Compiled calls the Python boundary makes for one input at most: a capacity that the sizing
+missed (a rounding at the coarse level) is doubled and the input run again."""
+
+
+def run_growing(run: Callable[[Config], tuple], config: Config, tries: int = GROW_TRIES) -> tuple:
+    """`run(config)`, run again with each overflowed capacity doubled until none overflowed,
+    at most `tries` times, so that a capacity is never the user's problem.
+
+    `run` returns a tuple whose second item is a problem status (bits `PROBLEM_*`) of any
+    shape, one per pair of a batch; a capacity any pair overflowed grows. A traced status
+    (under jit) returns the first run as it is: the caller's status then reports it."""
+    for _ in range(tries):
+        out = run(config)
+        if not is_concrete(out[1]):
+            return out
+        grown = grow_capacities(config, int(np.bitwise_or.reduce(np.ravel(np.asarray(out[1])))))
+        if grown is None:
+            return out
+        config = grown
+    return out
+
+
+def _with_status(problem: Problem) -> tuple[Problem, Int[Array, ""]]:
+    return problem, problem.status
 
 
 def raise_for_codes(status: int, frame_status: int) -> None:
@@ -440,7 +471,7 @@ def _current_points(frame: PlaneFrame, curr: Cloud, config: Config, dtype):
     (structure of arrays, zero padded), their mask, and the overflow / too-few bits."""
     n_curr = jnp.sum(curr.valid)
     status = jnp.where(n_curr > config.capacities.max_points, PROBLEM_POINTS_OVERFLOW, 0)
-    status = status | jnp.where(n_curr < 10, PROBLEM_FEW_CURRENT, 0)
+    status = status | jnp.where(n_curr < MIN_POINTS, PROBLEM_FEW_CURRENT, 0)
     (keep,) = jnp.nonzero(curr.valid, size=config.capacities.max_points, fill_value=0)
     curr_valid = jnp.arange(config.capacities.max_points) < n_curr
     B = frame.to_frame(curr.points[keep].astype(dtype))

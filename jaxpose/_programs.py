@@ -15,6 +15,7 @@ second.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import pickle
@@ -104,20 +105,16 @@ def disable_program_files() -> None:
     _EXPORTS.clear()
 
 
-_SOURCE_DIGEST: list[str] = []
-
-
+@functools.cache
 def source_digest() -> str:
     """SHA-256 of jaxpose's Python source, computed once per process: part of every program
     file's name, so that an edited jaxpose never loads a stale program."""
-    if not _SOURCE_DIGEST:
-        digest = hashlib.sha256()
-        package = Path(__file__).parent
-        for path in sorted(package.rglob("*.py")):
-            digest.update(str(path.relative_to(package)).encode())
-            digest.update(path.read_bytes())
-        _SOURCE_DIGEST.append(digest.hexdigest())
-    return _SOURCE_DIGEST[0]
+    digest = hashlib.sha256()
+    package = Path(__file__).parent
+    for path in sorted(package.rglob("*.py")):
+        digest.update(str(path.relative_to(package)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 def program_name(fn: Callable, static, intree, leaves) -> str:

@@ -3,6 +3,7 @@ checks create their arrays explicitly. Clouds and problems are built once per se
 compiled functions are shared."""
 
 import os
+import shutil
 import tempfile
 
 import jax
@@ -13,10 +14,16 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 # The package's annotations are checked at run time (jaxtyping + beartype, pyproject's addopts).
 # One persistent compilation cache per test session, empty at its start, so the notebooks'
 # kernels (which inherit the environment) reuse each other's compiles.
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp(prefix="jaxpose-test-xla-"))
 # The CLI's `enable_compile_cache` (tests invoke the CLI in process) keeps its program files and
-# XLA cache in a folder of the test session's, not in the user's ~/.cache/jaxpose.
-os.environ.setdefault("JAXPOSE_CACHE", tempfile.mkdtemp(prefix="jaxpose-test-cache-"))
+# XLA cache in a folder of the test session's, not in the user's ~/.cache/jaxpose. The process
+# that makes the folders (pytest-xdist's controller; its workers inherit the variables) removes
+# them when the session ends.
+_OWN_FOLDERS = []
+_TEST_FOLDERS = {"JAX_COMPILATION_CACHE_DIR": "jaxpose-test-xla-", "JAXPOSE_CACHE": "jaxpose-test-cache-"}
+for _variable, _prefix in _TEST_FOLDERS.items():
+    if _variable not in os.environ:
+        os.environ[_variable] = tempfile.mkdtemp(prefix=_prefix)
+        _OWN_FOLDERS.append(os.environ[_variable])
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
@@ -62,9 +69,10 @@ def n5_problem(paper_clouds):
 def pytest_collection_modifyitems(config, items):
     """The reproduction notebook reruns the paper's table (what `jaxpose reproduce` does,
     tested by test_reproduction and test_cli) in a kernel of its own, ≈ 65 s of the default
-    run: it runs with `-m slow`. The quickstart notebook stays in the default run."""
+    run: it runs with `-m slow`, as does the quickstart notebook (≈ 80 s of a kernel that
+    compiles its own programs; the calls it shows are tested here)."""
     for item in items:
-        if item.nodeid.endswith("reproduction.ipynb"):
+        if item.nodeid.endswith(".ipynb"):
             item.add_marker(pytest.mark.slow)
 
 
@@ -96,3 +104,8 @@ def restore_compile_cache():
     _programs._EXPORTS[:] = before[0]
     jax.config.update("jax_compilation_cache_dir", before[1])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", before[2])
+
+
+def pytest_sessionfinish(session, exitstatus):
+    for folder in _OWN_FOLDERS:
+        shutil.rmtree(folder, ignore_errors=True)

@@ -197,7 +197,10 @@ def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn):
     for i in range(len(Rd)):
         for j in range(i):
             assert math.degrees(float(jp.rotation_angle(Rd[i], Rd[j]))) > jp.RotationSearch().separation_deg / 2
-    # The box search of the default config cannot reach this turn.
+
+
+@pytest.mark.slow  # a compile of the default program of its own (≈ 30 s on the 2-core CPU)
+def test_the_default_box_search_cannot_reach_the_large_turn(large_turn):
     default = jp.estimate(large_turn.prev, large_turn.curr, key=jax.random.key(0))
     assert not realistic.errors(large_turn, default.rotation, default.translation)["found"]
     assert not bool(default.success)

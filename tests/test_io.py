@@ -97,7 +97,6 @@ def test_estimate_command_on_files(saved_pair, paper_clouds, monkeypatch, tmp_pa
     assert out["ambiguous"] in (True, False)
 
 
-@pytest.mark.slow  # 24 s on the 2-core CPU; the boundary checks also run in test_estimate
 def test_estimate_command_rejects_bad_input(saved_pair, tmp_path):
     prev, _ = saved_pair
     # Collinear points: no plane frame (a coplanar cloud has one).

@@ -230,3 +230,34 @@ def test_capacities_too_small_for_the_clouds_raise_naming_the_field(paper_clouds
         jp.Problem.build(prev, curr, jp.Config(capacities=jp.Capacities(max_prev_points=512)))
     with pytest.raises(ValueError, match="max_points"):
         jp.Problem.build(prev, curr, jp.Config(capacities=jp.Capacities(max_points=512)))
+
+
+def test_the_boundary_grows_each_overflowed_capacity_and_stops_when_none_overflowed():
+    """`run_growing` doubles the capacities whose bits any pair's status sets, and runs again."""
+    from jaxpose._problem import PROBLEM_CELLS_OVERFLOW, PROBLEM_GRID_OVERFLOW, run_growing
+
+    start = jp.Config(capacities=jp.Capacities(grid_cells=64, max_cells=256, max_points=1024))
+    seen = []
+
+    def run(config):
+        seen.append(config.capacities)
+        caps = config.capacities
+        per_pair = [
+            PROBLEM_GRID_OVERFLOW if caps.grid_cells < 256 else 0,
+            PROBLEM_CELLS_OVERFLOW if caps.max_cells < 512 else 0,
+        ]
+        return "result", np.asarray(per_pair)
+
+    out, status = run_growing(run, start)
+    assert out == "result" and not status.any()
+    assert [(c.grid_cells, c.max_cells, c.max_points) for c in seen] == [
+        (64, 256, 1024),
+        (128, 512, 1024),
+        (256, 512, 1024),
+    ]
+
+    seen.clear()  # a capacity that never suffices: the last run's status comes back for the caller to raise
+    out, status = run_growing(
+        lambda config: (seen.append(config) or "result", np.int32(PROBLEM_GRID_OVERFLOW)), start, tries=3
+    )
+    assert int(status) == PROBLEM_GRID_OVERFLOW and [c.capacities.grid_cells for c in seen] == [64, 128, 256]
