@@ -1,5 +1,5 @@
-"""Notebooks are committed with their outputs stripped (they are executed by nbmake in the
-default test run: `testpaths` includes notebooks/)."""
+"""Notebooks are committed with their outputs stripped (nbmake executes them with
+`pytest -m slow`: `testpaths` includes notebooks/)."""
 
 import json
 from pathlib import Path
