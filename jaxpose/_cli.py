@@ -293,6 +293,20 @@ def _preset(name: str, **capacities: int):
     return presets[name](capacities=Capacities(**capacities))
 
 
+def _standard_deviations(covariance) -> dict | None:
+    """The largest predicted 1σ of the rotation (degrees) and the translation (centimetres)
+    of `Estimate.covariance` (camera frame), or None without a usable one."""
+    import numpy as np
+
+    if covariance is None:
+        return None
+    cov = np.asarray(covariance, float)
+    largest = lambda block: float(np.sqrt(max(np.linalg.eigvalsh(block)[-1], 0.0)))  # noqa: E731
+    if not np.all(np.isfinite(cov)):
+        return None
+    return {"rotation_deg": float(np.degrees(largest(cov[:3, :3]))), "translation_cm": 100 * largest(cov[3:, 3:])}
+
+
 @functools.cache
 def _compiled_angles():
     """`jaxpose.angles` as one compiled program (a `BoundedJit`, so on disk with the compile
@@ -361,6 +375,7 @@ def estimate(
         "hard_score": float(result.hard),
         "soft_score": float(result.soft),
         "ambiguous": bool(result.ambiguous),
+        "std": _standard_deviations(result.covariance),
         "hypotheses": [
             {
                 "rotation_angles_deg": deg.tolist(),
@@ -387,6 +402,9 @@ def estimate(
         typer.echo(f"camera   θ φ ψ °  {fmt(out['camera_frame']['rotation_angles_deg'])}")
         typer.echo(f"camera   t cm     {fmt(out['camera_frame']['translation_cm'])}")
         typer.echo(f"hard f {out['hard_score']:.4f}   soft f {out['soft_score']:.4f}")
+        if out["std"] is not None:
+            std = out["std"]
+            typer.echo(f"1σ camera         {std['rotation_deg']:9.4f} °  {std['translation_cm']:9.4f} cm")
         for k, h in enumerate(out["hypotheses"][1:], start=2):
             typer.echo(f"hypothesis {k}: camera θ φ ψ ° {fmt(h['rotation_angles_deg'])}  score {h['score']:.3f}")
     raise typer.Exit(0 if out["status"] == 0 else 1)

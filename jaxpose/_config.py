@@ -361,16 +361,24 @@ class Thresholds(eqx.Module):
       the realistic subset (3 pairs per target and noise level) such pairs were the upper
       stage's turns about its long axis, where the two fits were 7–14° apart and one of them
       wrong.
+    - `max_rotation_std_deg`: a result whose predicted rotation uncertainty (the largest
+      standard deviation of `Estimate.covariance`'s rotation block, degrees) exceeds this is
+      reported `Status.uncertain`. The default, 1/3°, puts three standard deviations within
+      the 1° that the benchmarks count as found: the fit may be right, but the clouds do not
+      show that it is. `inf` turns the check off. Needs a fine stage (the covariance is its
+      least squares').
     """
 
     min_score: Scalar = 0.7
     max_range: Scalar = 1000.0
     ambiguous_deg: Scalar = 1.0
+    max_rotation_std_deg: Scalar = 1.0 / 3.0
 
     def __check_init__(self):
         _check_range("Thresholds", "min_score", self.min_score, 0.0, 1.0, closed_low=True)
         _check_range("Thresholds", "max_range", self.max_range, 0.0, math.inf)
         _check_range("Thresholds", "ambiguous_deg", self.ambiguous_deg, 0.0, 180.0)
+        _check_range("Thresholds", "max_rotation_std_deg", self.max_rotation_std_deg, 0.0, math.inf)
 
 
 _LEGACY = {

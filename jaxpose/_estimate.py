@@ -26,6 +26,7 @@ from ._programs import BoundedJit
 from ._rotations import angles, rotation, rotation_angle
 from ._search import GlobalResult, LocalResult, box_scale, local_refine, restarted_search
 from ._tree import tree_select
+from ._uncertainty import motion_covariance, rotation_std
 
 
 class Status(eqx.Enumeration):
@@ -48,12 +49,25 @@ class Status(eqx.Enumeration):
         "the views do not fix the motion (e.g. a turn about a near-symmetry axis); Estimate.alternative "
         "holds the other fit"
     )
+    uncertain = (
+        "the fit's predicted rotation uncertainty (Estimate.covariance) exceeds "
+        "Thresholds.max_rotation_std_deg: the clouds do not pin the motion down to the 1° a success promises"
+    )
 
 
 _NAMES = tuple(Status._name_to_item)
-SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE, AT_BOX_EDGE, AMBIGUOUS = (
+SUCCESS, NOT_CONVERGED, LOW_SCORE, DEGENERATE, NON_FINITE, AT_BOX_EDGE, AMBIGUOUS, UNCERTAIN = (
     _NAMES.index(name)
-    for name in ("success", "not_converged", "low_score", "degenerate", "non_finite", "at_box_edge", "ambiguous")
+    for name in (
+        "success",
+        "not_converged",
+        "low_score",
+        "degenerate",
+        "non_finite",
+        "at_box_edge",
+        "ambiguous",
+        "uncertain",
+    )
 )
 """The integer codes of `Status`'s items (`Estimate.status`), for code that compares arrays."""
 STATUS_TEXT = dict(enumerate(Status._index_to_message))
@@ -120,6 +134,11 @@ class Estimate(eqx.Module):
       is then `Status.ambiguous`.
     - `alternative`: p (frame n) of the fit that was not chosen (equal to `params` without
       `FineStage.from_rest` or a fine stage).
+    - `covariance`: `(6, 6)` predicted covariance of the motion in the camera frame: the
+      rotation as a left rotation vector R R̂ᵀ in radians, then the translation in metres
+      (`jaxpose._uncertainty.motion_covariance`: the fine stage's least squares, scaled as
+      calibrated on noisy pairs), or None without a fine stage. Its largest rotation standard
+      deviation above `Thresholds.max_rotation_std_deg` makes the result `Status.uncertain`.
     - `hypotheses`: the distinct motions found, best first ([`Hypotheses`][jaxpose.Hypotheses]):
       with the capture stage (`Config.so3`) its `RotationSearch.hypotheses`; otherwise the
       chosen fit and the alternative (or the estimate alone without a fine stage).
@@ -139,6 +158,7 @@ class Estimate(eqx.Module):
     ambiguous: Bool[Array, ""]
     alternative: Float[Array, "6"]
     hypotheses: Hypotheses
+    covariance: Float[Array, "6 6"] | None
 
     @property
     def status(self) -> Int[Array, "*batch"]:
@@ -402,17 +422,30 @@ def _capture_stages(problem: Problem, config: Config):
     return glob, loc, p, fine.converged, hard_score(p, problem), fine, fine_kept, ambiguous, alternative, candidates
 
 
+def is_uncertain(covariance: Float[Array, "6 6"], config: Config) -> Bool[Array, ""]:
+    """Whether a motion covariance (camera frame; rotation vector in radians, then metres)
+    promises less than a success does: its largest rotation standard deviation exceeds
+    `Thresholds.max_rotation_std_deg`, or it is not finite (then it promises nothing)."""
+    std_deg = jnp.degrees(rotation_std(covariance))
+    return ~(std_deg <= config.thresholds.max_rotation_std_deg)
+
+
 def _finish(
     problem, config, glob, loc, p, converged, hard, fine, fine_kept, ambiguous, alternative, candidates
 ) -> Estimate:
     """The status (first matching condition of a fixed priority) and the estimate's fields."""
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
+    covariance, uncertain = None, jnp.asarray(False)
+    if fine is not None:
+        covariance = motion_covariance(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
+        uncertain = is_uncertain(covariance, config)
     conditions = [
         (problem.status != 0, Status.degenerate),
         (~finite, Status.non_finite),
         (hard < config.thresholds.min_score, Status.low_score),
         (glob.at_edge, Status.at_box_edge),
         (ambiguous, Status.ambiguous),
+        (uncertain, Status.uncertain),
         (~converged, Status.not_converged),
     ]
     result = Status.success
@@ -437,6 +470,7 @@ def _finish(
         ambiguous=ambiguous,
         alternative=jnp.where(jnp.all(jnp.isfinite(alternative)), alternative, p),
         hypotheses=hypotheses_of(problem.frame, params.at[0].set(p), score, distinct),
+        covariance=covariance,
     )
 
 
@@ -480,6 +514,7 @@ recently used ones kept in memory, see `jaxpose._programs`)."""
 
 __all__ = [
     "AMBIGUOUS",
+    "UNCERTAIN",
     "STATUS_NAME",
     "STATUS_TEXT",
     "Estimate",

@@ -9,7 +9,17 @@ import trimesh
 from conftest import T_PAPER, paper_rotation
 
 import jaxpose as jp
-from jaxpose._estimate import AT_BOX_EDGE, DEGENERATE, LOW_SCORE, NOT_CONVERGED, STATUS_TEXT, SUCCESS, estimate_problem
+from jaxpose._estimate import (
+    AT_BOX_EDGE,
+    DEGENERATE,
+    LOW_SCORE,
+    NOT_CONVERGED,
+    STATUS_TEXT,
+    SUCCESS,
+    UNCERTAIN,
+    estimate_problem,
+    is_uncertain,
+)
 from jaxpose._search import recentred_search, restarted_search
 
 CONFIG = jp.Config.fast(capacities=jp.Capacities(max_points=5120))  # fixed capacity: every test shares one compile
@@ -102,10 +112,17 @@ def test_degenerate_pair_under_jit_is_flagged_not_success(paper_clouds):
     assert np.all(np.isfinite(np.asarray(est.params)))
 
 
-def test_degenerate_pair_raises_at_the_boundary(paper_clouds):
+def test_degenerate_pair_raises_at_the_boundary_before_its_program_compiles(paper_clouds):
+    from jaxpose._estimate import _estimate_pair
+
+    _estimate_pair.clear()
     flat = jp.Cloud.from_points(np.outer(np.random.default_rng(0).normal(size=50), [1.0, 2.0, 0.5]) + [0, 0, 4])
     with pytest.raises(ValueError, match="previous cloud: the points are collinear"):
         jp.estimate(flat, paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
+    few = jp.Cloud.from_points(np.asarray(paper_clouds["n5", "variant2"].compact())[:9])
+    with pytest.raises(ValueError, match="current cloud: fewer than 10"):
+        jp.estimate(paper_clouds["n5", "previous"], few, CONFIG, key=jax.random.key(0))
+    assert not _estimate_pair.programs
 
 
 def search_config(**search) -> jp.Config:
@@ -221,9 +238,37 @@ def test_one_status_vocabulary(n5_estimate):
     assert bool(est.success) == (int(est.status) == SUCCESS) == bool(est.result == jp.Status.success)
     assert STATUS_TEXT[NOT_CONVERGED] == jp.Status[jp.Status.not_converged]
     assert STATUS_TEXT[AT_BOX_EDGE] == jp.Status[jp.Status.at_box_edge]
-    assert set(STATUS_TEXT) == set(range(7))
+    assert STATUS_TEXT[UNCERTAIN] == jp.Status[jp.Status.uncertain]
+    assert set(STATUS_TEXT) == set(range(8))
     assert not bool(est.ambiguous) and np.all(np.isfinite(np.asarray(est.alternative)))
     assert est.stats["evaluations"] == est.search.evaluations and est.stats["fine_steps"] == est.fine.steps
+
+
+def test_the_covariance_of_an_exact_fit_is_tight_and_a_covariance(n5_estimate):
+    """`Estimate.covariance` (camera frame, rad then m) of the noise-free paper pair: symmetric,
+    positive definite, and far inside the uncertainty a success allows."""
+    cov = np.asarray(n5_estimate.covariance)
+    assert cov.shape == (6, 6)
+    np.testing.assert_allclose(cov, cov.T, atol=1e-15)
+    assert np.linalg.eigvalsh(cov).min() > 0
+    assert np.degrees(np.sqrt(np.linalg.eigvalsh(cov[:3, :3]).max())) < 0.01
+    assert not bool(is_uncertain(n5_estimate.covariance, jp.Config()))
+
+
+@pytest.mark.parametrize(
+    "std_deg, threshold_deg, expected",
+    [(0.1, 1 / 3, False), (0.5, 1 / 3, True), (0.5, np.inf, False), (np.nan, 1 / 3, True), (np.nan, np.inf, True)],
+)
+def test_a_success_needs_a_tight_covariance(std_deg, threshold_deg, expected):
+    """`Status.uncertain`: the largest rotation standard deviation above
+    `Thresholds.max_rotation_std_deg` (degrees), whatever its axis; a non-finite covariance
+    is never a success."""
+    axis = np.random.default_rng(3).normal(size=3)
+    axis /= np.linalg.norm(axis)
+    cov = np.eye(6) * 1e-10
+    cov[:3, :3] += np.radians(std_deg) ** 2 * np.outer(axis, axis) if np.isfinite(std_deg) else np.nan
+    config = jp.Config(thresholds=jp.Thresholds(max_rotation_std_deg=threshold_deg))
+    assert bool(is_uncertain(jnp.asarray(cov), config)) == expected
 
 
 def _fine_result(angles_deg, inliers):
@@ -330,3 +375,17 @@ def test_a_contest_of_fits(challenger_angles, challenger_inliers, best_after, ot
     np.testing.assert_array_equal(np.asarray(new_best.params), np.asarray(named[best_after].params))
     np.testing.assert_array_equal(np.asarray(new_other.params), np.asarray(named[other_after].params))
     assert bool(ambiguous) == ambiguous_after
+
+
+def test_the_boundary_passes_clouds_on_as_masked_floats():
+    """`Cloud.floating`: integer points become the default float type and invalid rows zeros,
+    so `estimate` runs them in the float program, never NaN from a row nobody reads."""
+    ints = jp.Cloud(jnp.arange(12, dtype=jnp.int32).reshape(4, 3), jnp.array([True, True, False, True]))
+    out = ints.floating()
+    assert out.points.dtype == jnp.result_type(float)
+    np.testing.assert_array_equal(np.asarray(out.points[2]), 0.0)
+    np.testing.assert_array_equal(np.asarray(out.points[3]), [9.0, 10.0, 11.0])
+    holes = jp.Cloud(jnp.array([[1.0, 2.0, 3.0], [jnp.nan, 0.0, 0.0]]), jnp.array([True, False]))
+    assert bool(jnp.all(jnp.isfinite(holes.floating().points)))
+    batch = jp.Cloud(jnp.ones((2, 3, 3)), jnp.array([[True, False, True], [False, True, True]]))
+    np.testing.assert_array_equal(np.asarray(batch.floating().points[:, :, 0]), [[1, 0, 1], [0, 1, 1]])

@@ -38,6 +38,7 @@ import numpy as np
 
 from .._cloud import Cloud
 from .._rotations import rotation_angle
+from .._uncertainty import rotation_std
 from ..sim import targets
 from ..sim._camera import Camera
 from ..sim._simulate import simulate
@@ -209,11 +210,20 @@ def run_jaxpose(cases: list[Case], config=None, seed: int = 0, progress: Callabl
                 **errors(case, est.rotation, est.translation),
                 seconds=seconds,
                 status=STATUS_NAME[int(est.status)],
+                rotation_std_deg=_rotation_std_deg(est),
             )
         )
         if progress is not None:
             progress()
     return rows, first_calls
+
+
+def _rotation_std_deg(est) -> float | None:
+    """The estimate's largest predicted rotation standard deviation (degrees), or None
+    without a covariance."""
+    if est.covariance is None:
+        return None
+    return math.degrees(float(rotation_std(est.covariance)))
 
 
 def _bucket(config) -> tuple[int, int, int, int]:

@@ -10,7 +10,7 @@ the search box (or `keyframe_every` frames have passed). So the motion measured 
 the search box, and the errors of frame-to-frame steps do not add up at every frame: only
 each keyframe switch adds its pair's error, and a slow tumble switches seldom. The motion
 predicted at a constant rate (`predicted_motion`) resolves an ambiguous registration and
-accepts a weak one (low score, not converged) where it agrees with it
+accepts a weak one (low score, not converged, uncertain) where it agrees with it
 (`continuity_choice`); with `guided`, each registration also starts its second surface fit
 from that prediction. The chained motion (R_0k, t_0k) maps frame 0's points to frame k's,
 in the camera frame c.
@@ -50,15 +50,15 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 from .._checks import is_concrete
 from .._cloud import Cloud
 from .._config import Config
-from .._estimate import AMBIGUOUS, LOW_SCORE, NOT_CONVERGED, SUCCESS, Hypotheses, estimate_problem
-from .._fine import fine_covariance
+from .._estimate import AMBIGUOUS, LOW_SCORE, NOT_CONVERGED, SUCCESS, UNCERTAIN, Hypotheses, estimate_problem
 from .._frame import plane_frame
-from .._poses import displacement_from_motion, motion_from_displacement
+from .._poses import displacement_from_motion
 from .._problem import Problem, sized_sequence_config
 from .._programs import BoundedJit
 from .._rotations import rotation_angle
 from .._search import box_scale
 from .._tree import tree_finite, tree_select
+from .._uncertainty import COVARIANCE_SCALE, motion_covariance
 
 FILTER_UPDATED, FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE = 0, 1, 2, 3
 FILTER_STATUS_NAME = {
@@ -305,7 +305,7 @@ class Chain(eqx.Module):
 
     `continuity` (None: none): motion continuity made frame k's estimate a registration
     (`continuity_choice`): an `ambiguous` estimate, whose measurement is the hypothesis
-    nearest the prediction, or a weak one (low score, not converged) that agrees with the
+    nearest the prediction, or a weak one (low score, not converged, uncertain) that agrees with the
     prediction; such a frame counts as registered."""
 
     rotations: Float[Array, "T 3 3"]
@@ -320,28 +320,8 @@ class Chain(eqx.Module):
     continuity: Bool[Array, " T"] | None = None
 
 
-# Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 1.52× too small on N5
-# pairs with 1 cm range noise (experiments/nees.py; with the scale the NEES is consistent).
-# Calibrated with `FineStage.anchor` "centroid"; with the planes through the points
-# (`Config.fast()`, `wide()`) the factor is 2.36. The default anchor, "hybrid", takes the
-# centroid on faces and the point across edges; experiments/nees.py has not measured it.
-COVARIANCE_SCALE = 1.52
-
-
-def measurement_covariance(problem: Problem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
-    """Covariance of the camera-frame motion (R, t) measured by an estimate p (frame n):
-    J Σ_p Jᵀ, with Σ_p the scaled fine-stage covariance and J the Jacobian of
-    p ↦ (log(R(p) R(p̂)ᵀ), t(p)) at p̂. Rotation vector in rad (left, frame c), then m."""
-    R_hat, _ = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
-
-    def motion(q):
-        R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, q)
-        return jnp.concatenate([_log(R @ R_hat.T), t])
-
-    J = jax.jacfwd(motion)(p)
-    cov = COVARIANCE_SCALE * fine_covariance(problem, config, p)
-    out = J @ cov @ J.T
-    return (out + out.T) / 2
+measurement_covariance = motion_covariance
+"""The covariance of a registration's measurement ([`motion_covariance`][jaxpose._uncertainty.motion_covariance])."""
 
 
 def chained_motions(
@@ -529,7 +509,7 @@ def is_registered(status: Int[Array, " T"], continuity: Bool[Array, " T"] | None
 
 
 WEAK_FRACTION = 1.0
-"""A weak estimate (`Status.low_score` or `Status.not_converged`) is accepted by continuity when
+"""A weak estimate (`Status.low_score`, `Status.not_converged` or `Status.uncertain`) is accepted by continuity when
 it lies within this fraction of `Thresholds.ambiguous_deg` of the predicted rotation. Under
 range noise the pattern score falls below `Thresholds.min_score` for estimates as good as the
 successes; refusing them all had left such tumbles without a single keyframe switch, so the
@@ -553,7 +533,9 @@ def continuity_choice(hypotheses: Hypotheses, status: Int[Array, ""], R_pred: Fl
     nearest = jnp.argmin(angle)
     gate = jnp.radians(config.thresholds.ambiguous_deg)
     ambiguous = (status == AMBIGUOUS) & (angle[nearest] <= CONTINUITY_FRACTION * gate)
-    weak = ((status == LOW_SCORE) | (status == NOT_CONVERGED)) & (angle[0] <= WEAK_FRACTION * gate)
+    weak = ((status == LOW_SCORE) | (status == NOT_CONVERGED) | (status == UNCERTAIN)) & (
+        angle[0] <= WEAK_FRACTION * gate
+    )
     return jnp.where(ambiguous, nearest, 0), ambiguous | weak
 
 
@@ -625,7 +607,7 @@ def chain_estimates(
       `experiments/tracking_benchmark.py` it did not help (docs, Tracking).
 
     Motion continuity (`continuity_choice`, against the motion predicted at a constant rate)
-    resolves an ambiguous estimate and accepts a weak one (low score, not converged) that
+    resolves an ambiguous estimate and accepts a weak one (low score, not converged, uncertain) that
     agrees with the prediction; such frames count as registered (`Chain.continuity`).
 
     Pure and jittable (`lax.scan` over frames).
