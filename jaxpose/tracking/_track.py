@@ -639,7 +639,11 @@ def chain_estimates(
         if config.fine is None:
             cov = jnp.eye(6, dtype=origin.dtype) * 1e-4
         else:
-            cov = measurement_covariance(problem, config, p)
+            # Slot 0 of the hypotheses is the estimate, whose covariance the estimate carries;
+            # only another hypothesis chosen by continuity needs its own.
+            cov = jax.lax.cond(
+                resolved & (j != 0), lambda: measurement_covariance(problem, config, p), lambda: est.covariance
+            )
         usable = measurement_usable(R_rel, t_rel, cov)
         cov = jnp.where(ok & usable, cov, jnp.eye(6, dtype=origin.dtype))  # finite even when unused
         # A keyframe switch needs a usable measurement: the filter clones its state there.
