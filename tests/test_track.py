@@ -288,7 +288,6 @@ def test_track_with_the_default_config_on_random_tumbles_is_finite_and_near_the_
 
 
 KNOWN_TRACKING_FAILURES = {
-    1: "satellite: 1.1° attitude error after 2 s from registrations 0.5–0.7° off (issue 21's accuracy)",
     2: "upper stage: a registration reported as a success 6° off (near-axisymmetric target, issue 21 item 6)",
 }
 
