@@ -234,12 +234,57 @@ def symmetry_turns(frame: PlaneFrame, config: Config) -> Float[Array, "2 3"]:
     return jnp.stack([angle * axis, -angle * axis])
 
 
-def turned(p: Float[Array, "6"], turn: Float[Array, "3"]) -> Float[Array, "6"]:
-    """The displacement p (frame n) with the moved frame ν turned further by the rotation
-    vector `turn` (radians, frame ν) about its origin: G' = G exp(turn), the same translation.
-    A body nearly symmetric about a ν axis looks almost the same after such a turn."""
-    G = rotation(*p[:3]) @ jaxlie.SO3.exp(turn).as_matrix()
-    return p.at[:3].set(angles(G).astype(p.dtype))
+SYMMETRY_CENTRE_PRIOR = 1e-4
+"""Weight, relative to the normals' own, that pulls [`symmetry_centre`][] towards the frame's
+origin: it fixes the directions the normals leave free (a single flat face) and nothing else."""
+
+
+def symmetry_centre(
+    points: Float[Array, "3 K"], normals: Float[Array, "3 K"], valid: Bool[Array, " K"], turn: Float[Array, "3"]
+) -> Float[Array, "3"]:
+    """The point (frame n, metres) on the near-symmetry axis of [`symmetry_turns`][] that the
+    turns go about: where the previous surface's normal lines, seen along the axis, meet.
+
+    For a cylinder seen from the side the normals point away from its axis, and the visible
+    points' centroid, the frame's origin, lies towards the camera, off the axis by about half
+    the radius: a turn about the origin then slides the surface sideways, out of the fine
+    stage's reach (a spent upper stage's 14° turn ended back at the wrong fit). The centre
+    is the least-squares point closest to every planar point's normal line, projected across
+    the axis and weighted by the squared sine of the normal's angle to it, with a weak pull
+    (`SYMMETRY_CENTRE_PRIOR`) to the origin. It lies on the axis through the origin where the
+    normals fix nothing (a disk's face, a single flat side), and never farther from the origin
+    than the farthest previous point. Zero without a turn.
+
+    `points`, `normals`, `valid`: the previous points, their unit normals and which have one
+    (`FineCloud.points`, `.normals`, `.valid`); `turn`: a rotation vector about the axis."""
+    dtype = points.dtype
+    axis = turn / jnp.maximum(jnp.linalg.norm(turn), jnp.finfo(dtype).tiny)
+    across = jnp.eye(3, dtype=dtype) - jnp.outer(axis, axis)
+    m = across @ normals  # (3, K): the normals' parts across the axis
+    weight = jnp.where(valid, jnp.sum(m * m, axis=0), 0.0)
+    u = m / jnp.maximum(jnp.linalg.norm(m, axis=0, keepdims=True), jnp.finfo(dtype).tiny)
+    # Σ w (P − u uᵀ): the squared distance to each normal line, across the axis.
+    normal_space = jnp.sum(weight) * across - jnp.einsum("k,ik,jk->ij", weight, u, u)
+    x = across @ points
+    rhs = jnp.sum(weight[None] * x, axis=1) - jnp.einsum("k,ik,k->i", weight, u, jnp.sum(u * x, axis=0))
+    prior = SYMMETRY_CENTRE_PRIOR * jnp.maximum(jnp.sum(weight), 1.0)
+    centre = jnp.linalg.solve(normal_space + prior * across + jnp.outer(axis, axis), rhs)
+    reach = jnp.max(jnp.where(valid, jnp.linalg.norm(points, axis=0), 0.0))
+    size = jnp.linalg.norm(centre)
+    centre = jnp.where(size > reach, centre * reach / jnp.maximum(size, jnp.finfo(dtype).tiny), centre)
+    turning = jnp.any(turn != 0) & jnp.all(jnp.isfinite(centre))
+    return jnp.where(turning, centre, jnp.zeros_like(centre))
+
+
+def turned(p: Float[Array, "6"], turn: Float[Array, "3"], centre: Float[Array, "3"] | None = None) -> Float[Array, "6"]:
+    """The displacement p (frame n) with the body turned further by the rotation vector `turn`
+    (radians, about an axis of frame ν) about its point `centre` (frame n, metres; default the
+    origin) before it moves: G' = G S and x' = x + G (c − S c), S = exp(turn). A body nearly
+    symmetric about an axis through c looks almost the same after such a turn."""
+    S = jaxlie.SO3.exp(turn).as_matrix()
+    G = rotation(*p[:3])
+    xyz = p[3:] if centre is None else p[3:] + G @ (centre - S @ centre)
+    return jnp.concatenate([angles(G @ S), xyz]).astype(p.dtype)
 
 
 def polished(fine: FineResult, exact: FineResult) -> FineResult:
@@ -288,7 +333,7 @@ def fine_passes(
 ) -> FineResult:
     """The fine stage's runs, stacked `(k + r + 1,)` (or `(k + r,)` with `FineStage.anchor`
     "point"): run i < k from `starts[i]` (frame n); then run k + j from the best of those
-    (`best_run`) turned by `turns[j]` ([`turned`][]; an inactive run,
+    (`best_run`) turned by `turns[j]` about [`symmetry_centre`][] ([`turned`][]; an inactive run,
     `fine_refine(..., active=False)`, where the turn is zero); then, where the best of all
     shows no range noise, its polish against planes through the previous points (see
     [`polished`][]; an inactive run otherwise).
@@ -302,6 +347,7 @@ def fine_passes(
     passes = fits + (config.fine.anchor != "point")
     fine = problem.fine
     exact = exact_surface(fine)
+    centre = symmetry_centre(fine.points, fine.normals, fine.valid, turns[0]) if turns.shape[0] else None
 
     def one_pass(runs, i):
         polish = i == fits
@@ -310,7 +356,7 @@ def fine_passes(
         start = starts[jnp.minimum(i, count - 1)]
         if turns.shape[0]:
             turn = turns[jnp.clip(i - count, 0, turns.shape[0] - 1)]
-            start = jnp.where(turning, turned(best_run(runs, count).params, turn), start)
+            start = jnp.where(turning, turned(best_run(runs, count).params, turn, centre), start)
             active = ~turning | jnp.any(turn != 0)
         else:
             active = True
