@@ -424,8 +424,9 @@ def test_the_fine_passes_are_the_separate_runs(paper_clouds):
 
 def test_the_turned_passes_start_from_the_best_fit_turned(paper_clouds):
     """With `turns`, `_estimate.fine_passes` runs, after the starts, one run per turn from the
-    best of the starts' fits turned by it (`_estimate.turned`); a zero turn is an inactive run."""
-    from jaxpose._estimate import better_fine, fine_passes, turned
+    best of the starts' fits turned by it (`_estimate.turned`) about the previous surface's
+    symmetry centre (`_estimate.symmetry_centre`); a zero turn is an inactive run."""
+    from jaxpose._estimate import better_fine, fine_passes, symmetry_centre, turned
 
     config = jp.Config(capacities=jp.Capacities(max_points=5120))
     problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config)
@@ -438,7 +439,8 @@ def test_the_turned_passes_start_from_the_best_fit_turned(paper_clouds):
     assert runs.params.shape == (5, 6)
     one = jax.jit(lambda start: fine_refine(problem, config, start))
     best = better_fine(one(starts[0]), one(starts[1]))
-    separate = one(turned(best.params, turns[0]))
+    centre = symmetry_centre(problem.fine.points, problem.fine.normals, problem.fine.valid, turns[0])
+    separate = one(turned(best.params, turns[0], centre))
     np.testing.assert_allclose(np.asarray(runs.params[2]), np.asarray(separate.params), atol=1e-9)
     assert int(runs.steps[2]) == int(separate.steps) > 0
     assert int(runs.steps[3]) == 0 and float(runs.inliers[3]) == 0.0
