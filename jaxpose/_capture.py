@@ -44,6 +44,7 @@ from ._batch import score_batch
 from ._config import Config
 from ._fine import NEIGHBOUR_VOXEL, fine_refine, neighbourhood_planes
 from ._neighbours import nearest, spread_subset, voxel_grid, voxel_spacing
+from ._poses import preceded_by_turn
 from ._problem import Problem
 from ._rotations import angles, rotation, rotation_angle, signed_permutations, super_fibonacci
 from ._search import local_refine
@@ -236,15 +237,8 @@ def symmetric_candidates(p: Float[Array, "6"], prev: Surface) -> Float[Array, "3
     like any hypothesis. The translation comes from the half turn's centre alone: lining up the
     shared surface (`overlap_translation`) would count thin plates, which look alike from both
     sides, as seen after any turn."""
-    G, xyz = rotation(p[0], p[1], p[2]), p[3:]
     turns, centre = half_turns(prev)
-
-    def candidate(S):
-        G_s = G @ S
-        guess = G @ (centre - S @ centre) + xyz
-        return jnp.concatenate([angles(G_s), guess])
-
-    return jax.vmap(candidate)(turns)
+    return jax.vmap(lambda S: preceded_by_turn(p, S, centre))(turns)
 
 
 def consistency(

@@ -20,10 +20,10 @@ from ._config import Config
 from ._fine import FineResult, exact_surface, fine_refine
 from ._frame import PlaneFrame
 from ._objective import hard_score, soft_score
-from ._poses import motion_from_displacement
+from ._poses import motion_from_displacement, preceded_by_turn
 from ._problem import Problem, _build, check_range, raise_for_codes, run_growing, sized_config
 from ._programs import BoundedJit
-from ._rotations import angles, rotation, rotation_angle
+from ._rotations import rotation, rotation_angle
 from ._search import GlobalResult, LocalResult, box_scale, local_refine, restarted_search
 from ._tree import tree_select
 from ._uncertainty import motion_covariance, rotation_std
@@ -280,11 +280,10 @@ def turned(p: Float[Array, "6"], turn: Float[Array, "3"], centre: Float[Array, "
     """The displacement p (frame n) with the body turned further by the rotation vector `turn`
     (radians, about an axis of frame ν) about its point `centre` (frame n, metres; default the
     origin) before it moves: G' = G S and x' = x + G (c − S c), S = exp(turn). A body nearly
-    symmetric about an axis through c looks almost the same after such a turn."""
-    S = jaxlie.SO3.exp(turn).as_matrix()
-    G = rotation(*p[:3])
-    xyz = p[3:] if centre is None else p[3:] + G @ (centre - S @ centre)
-    return jnp.concatenate([angles(G @ S), xyz]).astype(p.dtype)
+    symmetric about an axis through c looks almost the same after such a turn
+    ([`jaxpose._poses.preceded_by_turn`][] with S = exp(turn))."""
+    centre = jnp.zeros(3, p.dtype) if centre is None else centre
+    return preceded_by_turn(p, jaxlie.SO3.exp(turn).as_matrix(), centre)
 
 
 def polished(fine: FineResult, exact: FineResult) -> FineResult:

@@ -72,6 +72,14 @@ def motion_from_displacement(
     return R_rel, O + A @ p[3:] - R_rel @ O
 
 
+def preceded_by_turn(p: Float[Array, "6"], S: Float[Array, "3 3"], centre: Float[Array, "3"]) -> Float[Array, "6"]:
+    """The displacement p (frame n) preceded by a turn S (3×3) of the body about its point
+    `centre` (frame n, metres): the body turns by S about c, then moves by p, so that
+    G' = G S and x' = x + G (c − S c)."""
+    G = rotation(*p[:3])
+    return jnp.concatenate([angles(G @ S), p[3:] + G @ (centre - S @ centre)]).astype(p.dtype)
+
+
 def true_displacement(frame, R1, t1, R2, t2) -> Float[Array, "6"]:
     """Ground-truth displacement p in the plane frame `frame` for a target moving (R1, t1) → (R2, t2).
 
