@@ -280,9 +280,10 @@ class FineStage(eqx.Module):
       two more runs start from the best fit turned by ±`turn_deg` degrees about the third
       axis, through the point where the previous surface's normal lines meet across it
       (`jaxpose._estimate.symmetry_centre`: a cylinder's axis) (static; 0: no such runs). A
-      turn they find that explains the current cloud as well (inlier fractions within 0.01)
-      and lies more than `Thresholds.ambiguous_deg` away makes the estimate
-      `Status.ambiguous`; one that explains it better becomes the estimate.
+      turn they find that explains the current cloud about as well (inlier fractions within
+      0.02 under range noise, 0.01 without: `jaxpose._estimate.turn_tie`) and lies more than
+      `Thresholds.ambiguous_deg` away makes the estimate `Status.ambiguous`; one that
+      explains it better becomes the estimate.
       On the realistic benchmark's noisy upper stages both fits from the refine and from rest
       ended in the same wrong turn about the long axis, 14.5° off, with as many inliers as
       the truth's fit, and were reported as successes (docs, Findings: turns about a

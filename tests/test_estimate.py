@@ -453,6 +453,26 @@ def test_a_contest_of_fits(
     assert bool(ambiguous) == ambiguous_after
 
 
+@pytest.mark.parametrize("best_rms, ambiguous_after", [(0.003, True), (0.0005, False)])
+def test_a_turned_fit_within_the_turn_tie_makes_a_noisy_estimate_ambiguous(best_rms, ambiguous_after):
+    """A fit turned about a near-symmetry axis that explains 1.5 % fewer current points than the
+    best lies outside `FINE_TIE` but inside `TURN_TIE`: the best stays and the turned fit
+    becomes the runner-up. The estimate is ambiguous when the best's residuals show range
+    noise (3 mm), not when they do not (0.5 mm, below `EXACT_RMS`: `turn_tie` is `FINE_TIE`)."""
+    from jaxpose._estimate import FINE_TIE, TURN_TIE, contest, turn_tie
+    from jaxpose._fine import EXACT_RMS
+
+    best = _fine_result((0.0, 0.0, 0.0), 0.67, best_rms)
+    other = _fine_result((0.0, 0.2, 0.0), 0.66)
+    turned = _fine_result((0.0, 0.0, 14.0), 0.655, 0.002)
+    assert FINE_TIE < 0.67 - 0.655 < TURN_TIE
+    assert float(turn_tie(best)) == (TURN_TIE if best_rms >= EXACT_RMS else FINE_TIE)
+    new_best, new_other, ambiguous = contest(best, other, jnp.asarray(False), turned, jp.Config(), turn_tie(best))
+    np.testing.assert_array_equal(np.asarray(new_best.params), np.asarray(best.params))
+    np.testing.assert_array_equal(np.asarray(new_other.params), np.asarray(turned.params))
+    assert bool(ambiguous) == ambiguous_after
+
+
 def test_the_boundary_passes_clouds_on_as_masked_floats():
     """`Cloud.floating`: integer points become the default float type and invalid rows zeros,
     so `estimate` runs them in the float program, never NaN from a row nobody reads."""
