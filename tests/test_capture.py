@@ -207,21 +207,21 @@ def test_the_default_box_search_cannot_reach_the_large_turn(large_turn):
 
 
 @pytest.mark.slow
-def test_a_guess_starts_the_default_second_surface_fit(large_turn):
+def test_a_guess_starts_the_default_second_surface_fit():
     """`estimate_problem(..., guess=p)`: the default's second surface fit starts at p instead of
-    at rest (a tracker passes its prediction). From the true motion of this turn, beyond the
-    box search's reach, the surface fit lands on it and is the better of the two fits; from
-    rest it does not. The estimate still drops a fit outside the search box (`within_reach`),
-    so it is no success either way."""
-    config = sized_config(large_turn.prev, large_turn.curr, jp.Config())
-    problem = jp.Problem.build(large_turn.prev, large_turn.curr, config)
-    truth = jp.displacement_from_motion(
-        problem.frame.origin, problem.frame.axes, large_turn.rotation, large_turn.translation
-    )
+    at rest (a tracker passes its prediction). From the true motion of this turn of 135–180°,
+    beyond the box search's reach, the surface fit lands on it and is the better of the two
+    fits; from rest it does not. The estimate still drops a fit outside the search box
+    (`within_reach`), so it is no success either way."""
+    cases, _ = benchmark.make_cases(1, names=("fragment",), levels=(0.0,))
+    turn = next(c for c in cases if c.bin == (135.0, 180.0))
+    config = sized_config(turn.prev, turn.curr, jp.Config())
+    problem = jp.Problem.build(turn.prev, turn.curr, config)
+    truth = jp.displacement_from_motion(problem.frame.origin, problem.frame.axes, turn.rotation, turn.translation)
 
     def fine_found(est):
         R, t = jp.motion_from_displacement(problem.frame.origin, problem.frame.axes, est.fine.params)
-        return realistic.errors(large_turn, R, t)["found"]
+        return realistic.errors(turn, R, t)["found"]
 
     guided = estimate_problem(problem, config, jax.random.key(0), truth)
     assert fine_found(guided) and not bool(guided.success)
