@@ -1,6 +1,6 @@
 """Every fit of the default fine stage on chosen pairs of the realistic benchmark.
 
-`uv run python experiments/fine_runs.py [PREFIX ...] [--out results/fine_runs.json]`
+`uv run python experiments/fine_runs.py [PREFIX ...] [--out FILE.json]`
 
 For each pair of `jaxpose.evaluation.realistic.make_cases(8)` (the benchmark's pairs, seed 0)
 whose label starts with one of the prefixes (default: the upper stage at σ 0.5, 1 and 2 cm,

@@ -12,12 +12,11 @@ import jax.numpy as jnp
 import jaxlie
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from . import _fine
 from ._capture import capture_search
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
-from ._fine import FineResult, exact_surface, fine_refine
+from ._fine import FineResult, exact_surface, fine_refine, without_range_noise
 from ._frame import PlaneFrame
 from ._objective import hard_score, soft_score
 from ._poses import motion_from_displacement, preceded_by_turn
@@ -197,11 +196,11 @@ near-symmetry axis; `experiments/fine_runs.py`)."""
 
 def turn_tie(best: FineResult) -> Float[Array, ""]:
     """The inlier tie for the turned fits against `best`: `TURN_TIE` where its residuals show
-    range noise, `FINE_TIE` where they do not (`planar_rms` below `_fine.EXACT_RMS`, the views
-    that are polished). Without noise to move points across the inlier gate, a difference of
-    1.5 % is the shape's: on two noise-free upper stages a turn 15° off explained 1.5–1.6 %
-    fewer points than the truth's fit, with the same RMS."""
-    return jnp.where(best.planar_rms < _fine.EXACT_RMS, FINE_TIE, TURN_TIE)
+    range noise, `FINE_TIE` where they do not (`_fine.without_range_noise`, the views that are
+    polished). Without noise to move points across the inlier gate, a difference of 1.5 % is
+    the shape's: on two noise-free upper stages a turn 15° off explained 1.5–1.6 % fewer
+    points than the truth's fit, with the same RMS."""
+    return jnp.where(without_range_noise(best), FINE_TIE, TURN_TIE)
 
 
 def prefers(a: FineResult, b: FineResult) -> Bool[Array, ""]:
@@ -309,35 +308,28 @@ def turned(p: Float[Array, "6"], turn: Float[Array, "3"], centre: Float[Array, "
 def polished(fine: FineResult, exact: FineResult) -> FineResult:
     """`fine`, or its polish `exact` (the same fit run again from `fine.params` against planes
     through the previous points, `_fine.exact_surface`) when `fine`'s residuals show no range
-    noise (`planar_rms` below `_fine.EXACT_RMS`): there the centroid anchor only adds its curvature
+    noise (`_fine.without_range_noise`): there the centroid anchor only adds its curvature
     bias, and the point anchor is exact. On the realistic subset's noise-free pairs the median
     centroid error went from 0.09 to 0.01 cm (docs, Findings: the fine stage's anchor on the
     realistic benchmark). The polish replaces `fine` only when it converged and explains the
     cloud at least as well (`better_fine`)."""
     exact = tree_select(exact.converged | ~fine.converged, exact, fine)
-    return tree_select(fine.planar_rms < _fine.EXACT_RMS, better_fine(fine, exact), fine)
+    return tree_select(without_range_noise(fine), better_fine(fine, exact), fine)
 
 
-def contest(
-    best: FineResult,
-    other: FineResult,
-    ambiguous,
-    challenger: FineResult,
-    config: Config,
-    tie: float | Float[Array, ""] = FINE_TIE,
-):
-    """Another fit against the best so far, the runner-up `other` and whether the estimate is
-    ambiguous. The challenger becomes the best when preferred ([`prefers`][]), and the best
-    it displaces becomes the runner-up if the two lie apart. A challenger that loses becomes
-    the runner-up when it lies apart from the best and the runner-up does not, or is less
-    preferred. A challenger whose inlier fraction is within `tie` of the best's and that lies
-    apart makes the estimate ambiguous (`equally_good_and_apart`). An inactive run (no
-    inliers) changes nothing."""
+def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResult, config: Config):
+    """A turned fit (the challenger) against the best so far, the runner-up `other` and whether
+    the estimate is ambiguous. The challenger becomes the best when preferred ([`prefers`][]),
+    and the best it displaces becomes the runner-up if the two lie apart. A challenger that
+    loses becomes the runner-up when it lies apart from the best and the runner-up does not,
+    or is less preferred. A challenger whose inlier fraction is within [`turn_tie`][] of the
+    best's and that lies apart makes the estimate ambiguous (`equally_good_and_apart`). An
+    inactive run (no inliers) changes nothing."""
     live = challenger.inliers > 0
     far = apart(best, challenger, config)
     wins = live & prefers(best, challenger)
     rival = live & ~wins & far & (~apart(best, other, config) | prefers(other, challenger))
-    tied = live & equally_good_and_apart(best, challenger, config, tie)
+    tied = live & equally_good_and_apart(best, challenger, config, turn_tie(best))
     demoted = wins & far
     runner_up = tree_select(demoted, best, tree_select(rival, challenger, other))
     return tree_select(wins, challenger, best), runner_up, ambiguous | tied
@@ -388,7 +380,7 @@ def fine_passes(
         else:
             active = True
         start = jnp.where(polish, best.params, start)
-        active = jnp.where(polish, best.planar_rms < _fine.EXACT_RMS, active)
+        active = jnp.where(polish, without_range_noise(best), active)
         run = fine_refine(problem, config, start, tree_select(polish, exact, fine), active=active)
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 
@@ -442,7 +434,7 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
             fine, other = better_fine(fine, rest), better_fine(rest, fine)
         fits = len(starts) + (0 if turns is None else turns.shape[0])
         for i in range(len(starts), fits):
-            fine, other, ambiguous = contest(fine, other, ambiguous, _take(runs, i), config, turn_tie(fine))
+            fine, other, ambiguous = contest(fine, other, ambiguous, _take(runs, i), config)
         alternative = other.params
         if config.fine.anchor != "point":
             fine = polished(fine, _take(runs, fits))

@@ -303,6 +303,12 @@ centroid anchor to average, only its curvature bias. On the realistic subset the
 pairs' RMS was 0.0–0.9 mm with centroid anchors and the noisy ones' 1.5 mm and up."""
 
 
+def without_range_noise(fit: FineResult) -> Bool[Array, "*batch"]:
+    """Whether a fine-stage result's residuals show no range noise: its weighted RMS over its
+    most planar matches (`FineResult.planar_rms`, metres) is below `EXACT_RMS`."""
+    return fit.planar_rms < EXACT_RMS
+
+
 def _moved(p: Float[Array, "6"], b: Float[Array, "3 S"]) -> Float[Array, "3 S"]:
     """q = G(θ, φ, ψ)ᵀ (b − (x, y, z)): points of frame n (SoA) in frame ν."""
     return jnp.stack(into_moved_frame(p, b[0], b[1], b[2]))
@@ -563,6 +569,7 @@ __all__ = [
     "fine_covariance",
     "fine_refine",
     "exact_surface",
+    "without_range_noise",
     "select_current",
     "spread_subset",
 ]

@@ -467,7 +467,7 @@ def test_a_turned_fit_within_the_turn_tie_makes_a_noisy_estimate_ambiguous(best_
     turned = _fine_result((0.0, 0.0, 14.0), 0.655, 0.002)
     assert FINE_TIE < 0.67 - 0.655 < TURN_TIE
     assert float(turn_tie(best)) == (TURN_TIE if best_rms >= EXACT_RMS else FINE_TIE)
-    new_best, new_other, ambiguous = contest(best, other, jnp.asarray(False), turned, jp.Config(), turn_tie(best))
+    new_best, new_other, ambiguous = contest(best, other, jnp.asarray(False), turned, jp.Config())
     np.testing.assert_array_equal(np.asarray(new_best.params), np.asarray(best.params))
     np.testing.assert_array_equal(np.asarray(new_other.params), np.asarray(turned.params))
     assert bool(ambiguous) == ambiguous_after
