@@ -7,11 +7,13 @@ whose label starts with one of the prefixes (default: the upper stage at σ 0.5,
 and the satellite at σ 2 cm), the default `estimate` with the benchmark's key, then the fine
 stage's passes again from the same starts (`_estimate.fine_passes`: from the refine's result,
 from rest, from the best of those turned by ±`FineStage.turn_deg` about the near-symmetry
-axis where the view has one, and the polish). Per fit: its rotation error against the truth
-(degrees), inlier fraction and inlier RMS residual (mm); an inactive fit has no inliers. With
-the status and error of the estimate, and the ratio of the previous cloud's two largest
+axis where the view has one, and the polish). Per fit: its rotation error (degrees) and
+centroid error (cm) against the truth, inlier fraction and inlier RMS residual (mm); an
+inactive fit has no inliers. With the status and errors of the estimate and of the soft
+refine that started the first fit, and the ratio of the previous cloud's two largest
 principal moments. This shows how far apart the right and the wrong fits of a near-symmetric
-target are (docs, Findings: turns about a near-symmetry axis).
+target are (docs, Findings: turns about a near-symmetry axis), and how far a fit slides
+along the faces from where the refine left it (docs, Findings: slides along the faces).
 """
 
 from __future__ import annotations
@@ -43,7 +45,8 @@ def _fits(prev, curr, config, key):
     turns = symmetry_turns(problem.frame, config) if config.fine.turn_deg > 0 else None
     runs = fine_passes(problem, config, starts, turns)
     motions = jax.vmap(lambda p: motion_from_displacement(problem.frame.origin, problem.frame.axes, p))(runs.params)
-    return est, runs, motions, problem.frame.inertia
+    refine = motion_from_displacement(problem.frame.origin, problem.frame.axes, est.refine.params)
+    return est, runs, motions, refine, problem.frame.inertia
 
 
 def main():
@@ -57,16 +60,20 @@ def main():
             continue
         prev, curr = case.prev.floating(), case.curr.floating()
         config = sized_config(prev, curr, jp.Config())
-        est, runs, (Rs, ts), moments = _fits(prev, curr, config, jax.random.fold_in(jax.random.key(0), i))
+        est, runs, (Rs, ts), (R_refine, t_refine), moments = _fits(prev, curr, config, jax.random.fold_in(jax.random.key(0), i))
         error = realistic.errors(case, est.rotation, est.translation)
+        refine = realistic.errors(case, R_refine, t_refine)
+        fits = [realistic.errors(case, Rs[k], ts[k]) for k in range(Rs.shape[0])]
         row = {
             "label": case.label,
             "status": STATUS_NAME[int(est.status)],
-            "rotation_error_deg": round(error["rotation_error_deg"], 3),
+            "rotation_error_deg": round(error["rotation_error_deg"], 4),
+            "centroid_error_cm": round(error["centroid_error_cm"], 4),
+            "refine_rotation_error_deg": round(refine["rotation_error_deg"], 3),
+            "refine_centroid_error_cm": round(refine["centroid_error_cm"], 3),
             "moment_ratio": round(float(moments[1] / moments[0]), 4),
-            "fits_rotation_error_deg": [
-                round(realistic.errors(case, Rs[k], ts[k])["rotation_error_deg"], 2) for k in range(Rs.shape[0])
-            ],
+            "fits_rotation_error_deg": [round(f["rotation_error_deg"], 4) for f in fits],
+            "fits_centroid_error_cm": [round(f["centroid_error_cm"], 4) for f in fits],
             "fits_inliers": np.round(np.asarray(runs.inliers), 4).tolist(),
             "fits_rms_mm": np.round(np.asarray(runs.rms) * 1000, 2).tolist(),
         }
