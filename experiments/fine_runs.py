@@ -60,7 +60,9 @@ def main():
             continue
         prev, curr = case.prev.floating(), case.curr.floating()
         config = sized_config(prev, curr, jp.Config())
-        est, runs, (Rs, ts), (R_refine, t_refine), moments = _fits(prev, curr, config, jax.random.fold_in(jax.random.key(0), i))
+        est, runs, (Rs, ts), (R_refine, t_refine), moments = _fits(
+            prev, curr, config, jax.random.fold_in(jax.random.key(0), i)
+        )
         error = realistic.errors(case, est.rotation, est.translation)
         refine = realistic.errors(case, R_refine, t_refine)
         fits = [realistic.errors(case, Rs[k], ts[k]) for k in range(Rs.shape[0])]
