@@ -44,9 +44,11 @@ def _fits(prev, curr, config, key):
     starts = jnp.stack([est.refine.params, jnp.zeros(6, est.params.dtype)])
     turns = symmetry_turns(problem.frame, config) if config.fine.turn_deg > 0 else None
     runs = fine_passes(problem, config, starts, turns)
-    motions = jax.vmap(lambda p: motion_from_displacement(problem.frame.origin, problem.frame.axes, p))(runs.params)
-    refine = motion_from_displacement(problem.frame.origin, problem.frame.axes, est.refine.params)
-    return est, runs, motions, refine, problem.frame.inertia
+
+    def motion(p):
+        return motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
+
+    return est, runs, jax.vmap(motion)(runs.params), motion(est.refine.params), problem.frame.inertia
 
 
 def main():

@@ -155,11 +155,16 @@ def test_capture_reports_every_equivalent_motion_of_n5_and_flags_it():
 
 
 @pytest.fixture(scope="module")
-def large_turn():
-    """The capture benchmark's asymmetric fragment turned 90–135°, noise-free (seed 0)."""
+def fragment_turns():
+    """The capture benchmark's asymmetric fragment, noise-free (seed 0): one turn per bin."""
     cases, _ = benchmark.make_cases(1, names=("fragment",), levels=(0.0,))
-    case = next(c for c in cases if c.bin == (90.0, 135.0))
-    return case
+    return cases
+
+
+@pytest.fixture(scope="module")
+def large_turn(fragment_turns):
+    """The fragment turned 90–135°."""
+    return next(c for c in fragment_turns if c.bin == (90.0, 135.0))
 
 
 def test_consistency_prefers_the_truth(large_turn):
@@ -207,14 +212,13 @@ def test_the_default_box_search_cannot_reach_the_large_turn(large_turn):
 
 
 @pytest.mark.slow
-def test_a_guess_starts_the_default_second_surface_fit():
+def test_a_guess_starts_the_default_second_surface_fit(fragment_turns):
     """`estimate_problem(..., guess=p)`: the default's second surface fit starts at p instead of
     at rest (a tracker passes its prediction). From the true motion of this turn of 135–180°,
     beyond the box search's reach, the surface fit lands on it and is the better of the two
     fits; from rest it does not. The estimate still drops a fit outside the search box
     (`within_reach`), so it is no success either way."""
-    cases, _ = benchmark.make_cases(1, names=("fragment",), levels=(0.0,))
-    turn = next(c for c in cases if c.bin == (135.0, 180.0))
+    turn = next(c for c in fragment_turns if c.bin == (135.0, 180.0))
     config = sized_config(turn.prev, turn.curr, jp.Config())
     problem = jp.Problem.build(turn.prev, turn.curr, config)
     truth = jp.displacement_from_motion(problem.frame.origin, problem.frame.axes, turn.rotation, turn.translation)
