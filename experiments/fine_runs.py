@@ -3,8 +3,8 @@
 `uv run python experiments/fine_runs.py [PREFIX ...] [--out FILE.json]`
 
 For each pair of `jaxpose.evaluation.realistic.make_cases(8)` (the benchmark's pairs, seed 0)
-whose label starts with one of the prefixes (default: the upper stage at σ 0.5, 1 and 2 cm,
-and the satellite at σ 2 cm), the default `estimate` with the benchmark's key, then the fine
+whose label starts with one of the prefixes (only those are simulated; default: the upper
+stage at σ 0.5, 1 and 2 cm, and the satellite at σ 2 cm), the default `estimate` with the benchmark's key, then the fine
 stage's passes again from the same starts (`_estimate.fine_passes`: from the refine's result,
 from rest, from the best of those turned by ±`FineStage.turn_deg` about the near-symmetry
 axis where the view has one, and the polish). Per fit: its rotation error (degrees) and
@@ -51,15 +51,24 @@ def _fits(prev, curr, config, key):
     return est, runs, jax.vmap(motion)(runs.params), motion(est.refine.params), problem.frame.inertia
 
 
+def benchmark_position(case) -> int:
+    """The pair's position in `make_cases(8)`, the whole benchmark (its key there)."""
+    names, levels = jp.targets.BUILT_IN, realistic.LEVELS_CM
+    return (names.index(case.target) * len(levels) + levels.index(case.sigma_cm)) * 8 + case.index
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("prefixes", nargs="*", default=list(DEFAULT_PREFIXES))
     parser.add_argument("--out", type=Path, default=None, help="write the rows as JSON here")
     args = parser.parse_args()
     rows = []
-    for i, case in enumerate(realistic.make_cases(8)):
-        if not any(case.label.startswith(prefix) for prefix in args.prefixes):
-            continue
+
+    def wanted(label):
+        return any(label.startswith(prefix) for prefix in args.prefixes)
+
+    for case in realistic.make_cases(8, keep=wanted):
+        i = benchmark_position(case)
         prev, curr = case.prev.floating(), case.curr.floating()
         config = sized_config(prev, curr, jp.Config())
         est, runs, (Rs, ts), (R_refine, t_refine), moments = _fits(

@@ -187,6 +187,18 @@ def test_a_close_view_larger_than_the_refine_is_exact():
     assert errors["rotation_error_deg"] < 0.01 and errors["centroid_error_cm"] < 0.01, errors
 
 
+def test_a_kept_benchmark_pair_is_the_same_pair_as_in_the_whole_set():
+    """`make_cases(keep=...)` simulates only the pairs whose label it accepts, each the same
+    draw as in the whole set (its own seed), so a targeted experiment runs the benchmark's
+    pairs without simulating the rest."""
+    whole = realistic.make_cases(2, names=("n1",), levels=(0.0, 0.5))
+    kept = realistic.make_cases(2, names=("n1",), levels=(0.0, 0.5), keep=lambda label: label == "n1 σ0.5 #1")
+    assert [case.label for case in kept] == ["n1 σ0.5 #1"] == [whole[3].label]
+    np.testing.assert_array_equal(np.asarray(kept[0].prev.points), np.asarray(whole[3].prev.points))
+    np.testing.assert_array_equal(np.asarray(kept[0].curr.points), np.asarray(whole[3].curr.points))
+    np.testing.assert_array_equal(kept[0].rotation, whole[3].rotation)
+
+
 def test_jit_users_size_a_config_from_the_camera_and_extent():
     config = jp.Config().sized_for(jp.Camera.camcube2(), extent=5.0)
     assert config.capacities.grid_cells >= (1 + 2 * 0.2) * 5.0 / 0.026

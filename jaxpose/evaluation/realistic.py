@@ -68,7 +68,12 @@ class Case:
 
     @property
     def label(self) -> str:
-        return f"{self.target} σ{self.sigma_cm:g} #{self.index}"
+        return self.label_of(self.target, self.sigma_cm, self.index)
+
+    @staticmethod
+    def label_of(target: str, sigma_cm: float, index: int) -> str:
+        """A pair's label: target, σ in cm and index, e.g. "n5 σ0.5 #3"."""
+        return f"{target} σ{sigma_cm:g} #{index}"
 
 
 def _extent(target) -> float:
@@ -136,8 +141,13 @@ def nearest_distance(target) -> float:
     return max(2.0, 0.8 * _extent(target) / 2 / math.tan(math.radians(20.0)))
 
 
-def make_cases(pairs: int = 8, seed: int = 0, names=targets.BUILT_IN, levels=LEVELS_CM) -> list[Case]:
-    """`pairs` pairs for every target and noise level (see the module docstring)."""
+def make_cases(
+    pairs: int = 8, seed: int = 0, names=targets.BUILT_IN, levels=LEVELS_CM, keep: Callable[[str], bool] | None = None
+) -> list[Case]:
+    """`pairs` pairs for every target and noise level (see the module docstring). `keep`: only
+    the pairs whose label (`Case.label`, e.g. "n5 σ0.5 #3") it accepts are simulated; each
+    pair is drawn from its own seed (`seed`, target, level, index), so a kept pair is the same
+    as in the whole set."""
     cases = []
     sim = eqx.filter_jit(simulate)
     for ti, name in enumerate(names):
@@ -145,6 +155,8 @@ def make_cases(pairs: int = 8, seed: int = 0, names=targets.BUILT_IN, levels=LEV
         near = nearest_distance(target)
         for li, sigma in enumerate(levels):
             for i in range(pairs):
+                if keep is not None and not keep(Case.label_of(name, sigma, i)):
+                    continue
                 d = draw_pair(sim, target, near, sigma, np.random.default_rng([seed, ti, li, i]), 1.0, 15.0)
                 cases.append(Case(name, sigma, i, d.prev, d.curr, d.rotation, d.translation, math.degrees(d.angle)))
     return cases
