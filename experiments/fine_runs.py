@@ -4,10 +4,11 @@
 
 For each pair of `jaxpose.evaluation.realistic.make_cases(8)` (the benchmark's pairs, seed 0)
 whose label starts with one of the prefixes (only those are simulated; default: the upper
-stage at σ 0.5, 1 and 2 cm, and the satellite at σ 2 cm), the default `estimate` with the benchmark's key, then the fine
-stage's passes again from the same starts (`_estimate.fine_passes`: from the refine's result,
-from rest, from the best of those turned by ±`FineStage.turn_deg` about the near-symmetry
-axis where the view has one, and the polish). Per fit: its rotation error (degrees) and
+stage at σ 0.5, 1 and 2 cm, and the satellite at σ 2 cm), the default `estimate` with the
+benchmark's key, then the fine stage's passes again from the same starts
+(`_estimate.fine_passes`: from the refine's result, from rest, from the best of those turned
+by ±`FineStage.turn_deg` about the near-symmetry axis where the view has one, and the
+polish). Per fit: its rotation error (degrees) and
 centroid error (cm) against the truth, inlier fraction and inlier RMS residual (mm); an
 inactive fit has no inliers. With the status and errors of the estimate and of the soft
 refine that started the first fit, and the ratio of the previous cloud's two largest
