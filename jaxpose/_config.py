@@ -298,7 +298,7 @@ class FineStage(eqx.Module):
       motion on 28 pairs at σ 0.5 cm it gave median errors of 0.051° and 0.090 cm against
       0.081° and 0.082 cm, and one upper stage ended 1.07° off. On the whole realistic
       benchmark it removed the one false success and one miss at σ 0.5 cm, found one pair
-      fewer at 1 cm, and each call took 35–40 % longer (docs, Findings: a dense previous side).
+      fewer at 1 cm, and each call took 24–48 % longer (docs, Findings: a dense previous side).
     - `neighbours`: neighbours of a normal fit (static).
     - `anchor`: "hybrid" (the default), "centroid" or "point" (static): each previous point's
       plane goes through its neighbourhood's centroid or through the point itself; "hybrid"
