@@ -17,10 +17,9 @@ from __future__ import annotations
 
 import argparse
 
-from fine_variants import gicp_rows, jaxpose_rows, truth_rows
+from fine_variants import benchmark_cases, jaxpose_rows, truth_rows
 
 import jaxpose as jp
-from jaxpose.evaluation import realistic
 
 
 def main():
@@ -28,10 +27,7 @@ def main():
     parser.add_argument("--pairs", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--levels", default="0.5")
-    args = parser.parse_args()
-    levels = tuple(float(x) for x in args.levels.split(","))
-    cases = realistic.make_cases(pairs=args.pairs, levels=levels, seed=args.seed)
-    gicp = gicp_rows(cases)
+    _, cases, gicp = benchmark_cases(parser.parse_args())
     whole, _ = jaxpose_rows(cases, jp.Config())
     minimum, _ = truth_rows(cases, jp.Config())
     print("pair: whole call rotation °, centroid cm, status | from the truth | GICP")

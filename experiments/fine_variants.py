@@ -53,6 +53,14 @@ def gicp_rows(cases):
     return rows
 
 
+def benchmark_cases(args):
+    """The noise levels of `args.levels` (comma-separated, cm), the benchmark's pairs at them
+    (`args.pairs` per target and level, `args.seed`) and GICP's rows on those pairs."""
+    levels = tuple(float(x) for x in args.levels.split(","))
+    cases = realistic.make_cases(pairs=args.pairs, levels=levels, seed=args.seed)
+    return levels, cases, gicp_rows(cases)
+
+
 def jaxpose_rows(cases, config):
     """Every case through one compiled build-and-estimate; the compile time apart."""
     # The variants below change module constants read at trace time: drop every compiled
@@ -138,9 +146,7 @@ def main():
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--from-truth", action="store_true")
     args = parser.parse_args()
-    levels = tuple(float(x) for x in args.levels.split(","))
-    cases = realistic.make_cases(pairs=args.pairs, levels=levels, seed=args.seed)
-    gicp = gicp_rows(cases)
+    levels, cases, gicp = benchmark_cases(args)
     default = jp.Config()
     point = dataclasses.replace(default, fine=dataclasses.replace(default.fine, anchor="point"))
     centroid = dataclasses.replace(default, fine=dataclasses.replace(default.fine, anchor="centroid"))
