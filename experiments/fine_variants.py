@@ -1,7 +1,7 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
 `uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
-[--set anchors|cost|gates|edges|density] [--seed 0] [--from-truth]`
+[--set anchors|cost|gates|edges|density|current] [--seed 0] [--from-truth] [--only TEXT]`
 
 `--set anchors` (the default): the planes' anchor (the default "hybrid", centroids everywhere,
 points everywhere), the noise-free polish and the within-the-noise stop. `--set cost`: what the
@@ -12,9 +12,12 @@ gates on two draws of pairs). `--set edges`: the planar fraction, whether the pr
 at edges and corners keep their planes (docs, Findings: planes at edges and corners). `--seed`
 draws other pairs than the benchmark's (seed 0). `--set density`: the previous side thinned to
 `FineStage.points` (the default) or kept whole (`FineStage.prev_points`; docs, Findings: a
-dense previous side). `--from-truth` runs the fine stage alone from each pair's true motion
-(`fine_refine`), so that the errors are those of the fine objective's own minimum; its
-"success" then counts the converged fits.
+dense previous side). `--set current`: the current points raw (the default) or smoothed onto
+their neighbourhood's plane, on faces or everywhere (`FineStage.smooth_current`,
+`_fine.SMOOTHED_FRACTION`; docs, Findings: a smoothed current side). `--from-truth` runs
+the fine stage alone from each pair's true motion (`fine_refine`), so that the errors are
+those of the fine objective's own minimum; its "success" then counts the converged fits.
+`--only TEXT` runs only the variants whose name contains TEXT.
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
 one compiled program per variant (capacities sized once for all pairs, so times are those of
@@ -142,9 +145,10 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--levels", default="0,0.5,1,2")
-    parser.add_argument("--set", default="anchors", choices=("anchors", "cost", "gates", "edges", "density"))
+    parser.add_argument("--set", default="anchors", choices=("anchors", "cost", "gates", "edges", "density", "current"))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--from-truth", action="store_true")
+    parser.add_argument("--only", default="", help="run only the variants whose name contains this")
     args = parser.parse_args()
     levels, cases, gicp = benchmark_cases(args)
     default = jp.Config()
@@ -191,6 +195,21 @@ def main():
                 {},
             ),
         ]
+    if args.set == "current":
+        variants = [
+            ("default (raw current points)", default, {}),
+            (
+                "FineStage(smooth_current=True): face-like current points smoothed",
+                dataclasses.replace(default, fine=fine_with(default, "smooth_current", True)),
+                {},
+            ),
+            (
+                "FineStage(smooth_current=True), every current point with a plane smoothed",
+                dataclasses.replace(default, fine=fine_with(default, "smooth_current", True)),
+                {"SMOOTHED_FRACTION": 1.0},
+            ),
+        ]
+    variants = [v for v in variants if args.only in v[0]]
     rows_of = truth_rows if args.from_truth else jaxpose_rows
     for name, config, constants in variants:
         saved = {k: getattr(_fine, k) for k in constants}

@@ -138,8 +138,9 @@ class FineResult(eqx.Module):
       matches (made where that round started, within `ROUND_TOL` of `params` when
       converged); 0 when none was selected.
     - `rms`: root mean square point-to-plane residual at `params` of the inliers whose nearest
-      has a plane, each weighted by its Cauchy weight (the measure the stage minimises),
-      metres.
+      has a plane, each weighted by its Cauchy weight, metres; of the raw current points
+      (`CurrentSide.points`) also where the fit used the smoothed ones, so that it measures
+      the range noise.
     - `planar_rms`: the same over the inliers matched to the most planar previous points
       (`FineCloud.planar`): whether a view shows range noise (`EXACT_RMS`), without the
       edges' planes, which miss a noise-free surface by up to millimetres.
@@ -230,6 +231,24 @@ def neighbourhood_planes(
     return Neighbourhoods(centroid[:, :, 0], smallest, middle, normal.T, enough, index)
 
 
+def _most_planar(hood: Neighbourhoods, live: Bool[Array, " K"]):
+    """A function of a fraction f (0–1) giving the mask of the f most planar live
+    neighbourhoods with a defined plane. Planarity: smallest / middle scatter eigenvalue,
+    ranked rather than thresholded, so that it works whatever the noise (with 1 cm range noise
+    on N5 every neighbourhood scored above 0.01, noise-free the faces score ~0 and the edges
+    high)."""
+    usable = live & hood.enough
+    flatness = jnp.where(usable, hood.smallest / jnp.maximum(hood.middle, jnp.finfo(hood.middle.dtype).tiny), jnp.inf)
+    count = jnp.sum(usable)
+    ranked = jnp.sort(flatness)
+
+    def most_planar(fraction):
+        kth = jnp.clip(jnp.ceil(fraction * count).astype(jnp.int32) - 1, 0, ranked.shape[0] - 1)
+        return usable & (flatness <= ranked[kth])
+
+    return most_planar
+
+
 def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Config, planes, d) -> FineCloud:
     """The previous side of the fine stage from the previous points in frame n (rows)."""
     stage = FineStage(points=1) if config.fine is None else config.fine  # None: one empty slot
@@ -240,19 +259,9 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     P = A[:, idx]
     grid = voxel_grid(P, live, NEIGHBOUR_VOXEL * voxel_spacing(P, live))
     hood = neighbourhood_planes(grid, P, P, min(stage.neighbours, K))
-    centroid, smallest, middle, normal, enough, graph = hood
-    # Planarity: smallest / middle scatter eigenvalue. Keep the `FineStage.planar_fraction` most
-    # planar points (all by default): a rank, not an absolute threshold, so that it works
-    # whatever the noise (with 1 cm range noise on N5 every neighbourhood scored above 0.01,
-    # noise-free the faces score ~0 and the edges high).
-    flatness = jnp.where(live & enough, smallest / jnp.maximum(middle, jnp.finfo(P.dtype).tiny), jnp.inf)
-    count = jnp.sum(live & enough)
-    ranked = jnp.sort(flatness)
-
-    def most_planar(fraction):
-        kth = jnp.clip(jnp.ceil(fraction * count).astype(jnp.int32) - 1, 0, K - 1)
-        return live & enough & (flatness <= ranked[kth])
-
+    centroid, _, _, normal, _, graph = hood
+    # Keep the `FineStage.planar_fraction` most planar points (all by default).
+    most_planar = _most_planar(hood, live)
     ok = most_planar(stage.planar_fraction)
     # A plane through the neighbourhood's centroid averages the range noise of
     # `FineStage.neighbours` points. Through the raw noisy point, the nearest-neighbour match
@@ -276,6 +285,53 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
         grid,
         graph.astype(jnp.int32),
     )
+
+
+SMOOTHED_FRACTION = 0.7
+"""Fraction of the current points, those whose neighbourhoods are the most planar, that
+[`current_side`][] smooths: the faces, as the previous side's `EXACT_PLANAR_FRACTION`; across
+edges and corners the plane of least scatter misses the surface."""
+
+
+class CurrentSide(eqx.Module):
+    """The current side of the fine stage over the whole visible surface (frame n, metres):
+    the current points thinned evenly to `FineStage.points`, built once in
+    [`jaxpose.Problem.build`][] (`Problem.fine_curr`).
+
+    - `points`: `(3, S)` the selected current points, structure of arrays, zero padded.
+    - `smoothed`: `(3, S)` the same points, the face-like ones (`SMOOTHED_FRACTION` most
+      planar neighbourhoods) moved along their neighbourhood's normal onto the plane fitted
+      to their `FineStage.neighbours` nearest current points, among all the current points,
+      not only the selected ones; the others as they are.
+    - `live`: `(S,)` mask of the selected slots.
+
+    Why: the residual nᵀ(q − a) carries the range noise of the current point q in full,
+    while the previous side's plane averages its neighbourhood's ("hybrid" anchor). On a
+    face, projecting q onto its own neighbourhood's plane removes the noise along the normal
+    and keeps q's place on the surface, and it draws on the current points the thinning left
+    out. On a curved face the plane through the centroid lies about r²/2R inside the
+    surface, as the previous side's face planes do. Edges and corners keep their points, as
+    the previous side's planes there go through the points."""
+
+    points: Float[Array, "3 S"]
+    smoothed: Float[Array, "3 S"]
+    live: Bool[Array, " S"]
+
+
+def current_side(curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Config) -> CurrentSide | None:
+    """The fine stage's current side ([`CurrentSide`][]) from the current points in frame n
+    (SoA, metres), or None where the config does not smooth it
+    (`FineStage.smooth_current`): then [`select_current`][] selects at each run's start."""
+    if config.fine is None or not config.fine.smooth_current:
+        return None
+    idx, live = spread_subset(valid, config.fine.points)
+    b = jnp.where(live[None], curr[:, idx], 0.0)
+    grid = voxel_grid(curr, valid, NEIGHBOUR_VOXEL * voxel_spacing(curr, valid))
+    hood = neighbourhood_planes(grid, curr, b, config.fine.neighbours)
+    face = _most_planar(hood, live)(SMOOTHED_FRACTION)
+    height = jnp.sum(hood.normal * (b - hood.centroid), axis=0)
+    smoothed = jnp.where(face[None], b - hood.normal * height[None], b)
+    return CurrentSide(b, smoothed, live)
 
 
 EXACT_PLANAR_FRACTION = 0.7
@@ -428,9 +484,16 @@ def _weighted_rms(r: Float[Array, " S"], w: Float[Array, " S"]) -> Float[Array, 
     return jnp.sqrt(jnp.sum(w * r**2) / jnp.maximum(jnp.sum(w), jnp.finfo(r.dtype).tiny))
 
 
-def select_current(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, "3 S"], Bool[Array, " S"]]:
+def select_current(
+    problem, config: Config, p: Float[Array, "6"], smooth=True
+) -> tuple[Float[Array, "3 S"], Bool[Array, " S"]]:
     """The current points (frame n, SoA) within `FineStage.curr_slab`·d of a cutting plane of frame
-    ν(p), thinned evenly to `FineStage.points`, and their mask."""
+    ν(p), thinned evenly to `FineStage.points`, and their mask. Where the problem holds a
+    smoothed current side (`Problem.fine_curr`, the whole surface), its points: the smoothed
+    ones where `smooth` (a boolean, possibly traced), else the raw ones."""
+    side = problem.fine_curr
+    if side is not None:
+        return jnp.where(smooth, side.smoothed, side.points), side.live
     q = _moved(p, problem.curr)
     near = problem.curr_valid & (slab_distance(q, problem.planes, problem.d) <= config.fine.curr_slab * problem.d)
     idx, live = spread_subset(near, config.fine.points)
@@ -442,9 +505,13 @@ def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Arra
     Σ = σ̂² (JᵀJ)⁻¹, with J the Jacobian of the matched point-to-plane residuals at p (the
     Gauss–Newton Hessian of the fine objective) and σ̂² = Σ r² / (n − 6) over the n inliers.
     Assumes independent residuals; `experiments/nees.py` measures how far that holds. σ̂ is
-    at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite covariance."""
+    at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite covariance.
+    The residuals are those of the raw current points (`CurrentSide.points`), also where the
+    fit used the smoothed ones: the covariance of a fit to smoothed points is at most this."""
     p = jnp.asarray(p, problem.d.dtype)
-    b, live = select_current(problem, config, p)
+    # The raw current points, not the smoothed ones: smoothing correlates neighbouring
+    # residuals and shrinks σ̂ below the range noise, which `COVARIANCE_SCALE` was calibrated on.
+    b, live = select_current(problem, config, p, smooth=False)
     matched, weight, _ = _correspond(p, b, live, problem.fine, config.fine.inlier)
     J = jax.jacfwd(_residuals)(p, b, matched, weight)
     r = _residuals(p, b, matched, weight)
@@ -471,7 +538,7 @@ def least_squares_solver(tol: float) -> optx.GaussNewton:
 
 
 def fine_refine(
-    problem, config: Config, start: Float[Array, "6"], fine: FineCloud | None = None, active=True
+    problem, config: Config, start: Float[Array, "6"], fine: FineCloud | None = None, active=True, smooth=True
 ) -> FineResult:
     """Minimise the point-to-plane residuals of the selected current points from `start` (frame n).
     See the module docstring. Pure and jittable.
@@ -487,13 +554,18 @@ def fine_refine(
     `FineStage.rounds` rounds; `converged` says which. `fine` replaces the problem's previous
     side (e.g. [`exact_surface`][]). With `active` false (a boolean, possibly traced) no round
     runs: the result is `start`, not converged, with no inliers, so that a caller can compile
-    one run and skip it where it is not needed (`jaxpose._estimate.fine_passes`).
+    one run and skip it where it is not needed (`jaxpose._estimate.fine_passes`). `smooth`
+    (a boolean, possibly traced): fit the smoothed current points where the problem has them
+    ([`CurrentSide`][]), else the raw ones (the noise-free polish).
     """
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)
     fine = problem.fine if fine is None else fine
     inlier = jnp.asarray(config.fine.inlier, dtype)
-    b, live = select_current(problem, config, start)
+    b, live = select_current(problem, config, start, smooth)
+    # The raw points measure the noise (the stop's σ̂, the result's RMS): smoothed residuals
+    # are correlated and smaller than the range noise (`CurrentSide`).
+    raw, _ = select_current(problem, config, start, smooth=False)
     scale = jnp.asarray(PARAMETER_SCALE, dtype)
     solver = least_squares_solver(config.fine.tol)
 
@@ -523,7 +595,11 @@ def fine_refine(
         step = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value - y, 0.0)
         moved = jnp.max(jnp.abs(step))
         within_noise = _step_in_deviations(
-            y, step, lambda y_: root_w * _residuals(y_ * scale, b, matched, weight), r0, w0
+            y,
+            step,
+            lambda y_: root_w * _residuals(y_ * scale, b, matched, weight),
+            _residuals(y * scale, raw, matched, weight),
+            w0,
         )
         small = (moved <= ROUND_TOL) | (within_noise <= NOISE_STEP)
         # Only a round that searched the voxels ends the fit (`GRAPH_SHIFT`).
@@ -547,7 +623,7 @@ def fine_refine(
     # The inlier fraction and RMS use the last round's matches (made where that round started,
     # within ROUND_TOL of p when converged) rather than a fresh nearest-neighbour search at p,
     # which would cost as much as a round's matching.
-    r = _residuals(p, b, matched, weight)
+    r = _residuals(p, raw, matched, weight)
     w = _robust_weights(r, weight)
     n_in, used = jnp.sum(near), jnp.sum(live)
     return FineResult(
@@ -562,6 +638,8 @@ def fine_refine(
 
 
 __all__ = [
+    "CurrentSide",
+    "current_side",
     "FineCloud",
     "FineResult",
     "fine_cloud",

@@ -29,7 +29,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
-from ._fine import FineCloud, fine_cloud
+from ._fine import CurrentSide, FineCloud, current_side, fine_cloud
 from ._frame import FRAME_STATUS_TEXT, MIN_POINTS, PlaneFrame, plane_frame
 from ._neighbours import spread_subset
 from ._programs import BoundedJit
@@ -73,6 +73,8 @@ class Problem(eqx.Module):
     - `coarse`: the coarse problem the global search scores (`GlobalSearch.coarse_factor` > 1: cells of
       coarse·d, `coarse_points` current points thinned evenly, no fine stage; same frame n),
       or None.
+    - `fine_curr`: the fine stage's current side, with its face-like points smoothed
+      (`CurrentSide`), or None where `FineStage.smooth_current` is false (or no fine stage).
     """
 
     frame: PlaneFrame
@@ -97,6 +99,7 @@ class Problem(eqx.Module):
     planes: tuple[tuple[int, float], ...] = eqx.field(static=True)
     grid_cells: int = eqx.field(static=True)
     coarse: Problem | None = None
+    fine_curr: CurrentSide | None = None
 
     @property
     def search_problem(self) -> Problem:
@@ -526,4 +529,5 @@ def _problem_at_level(
         planes=planes,
         grid_cells=C,
         coarse=coarse,
+        fine_curr=current_side(curr_n, curr_valid, config),
     )

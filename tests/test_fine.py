@@ -15,6 +15,7 @@ import jaxpose as jp
 from jaxpose._fine import (
     Matches,
     _residuals,
+    current_side,
     exact_surface,
     fine_cloud,
     fine_covariance,
@@ -143,6 +144,59 @@ def test_plane_offsets_through_the_centroid_average_the_range_noise():
         rms[anchor] = float(np.sqrt(np.mean(height**2)))
     assert rms["point"] > 0.007  # ≈ 1 cm · cos 30°
     assert rms["centroid"] < 0.4 * rms["point"], rms
+
+
+def _ridge(noise_cm: float, seed: int = 0) -> np.ndarray:
+    """Two 1 cm-spaced faces, z = 0 (x < 0) and z = 0.3 x (x ≥ 0), meeting along the y axis,
+    with range noise of `noise_cm` along an oblique ray. Rows, metres."""
+    g = np.arange(-30, 31) * 0.01
+    u, v = np.meshgrid(g, g, indexing="ij")
+    pts = np.stack([u.ravel(), v.ravel(), np.where(u.ravel() < 0, 0.0, 0.3 * u.ravel())], 1)
+    ray = np.array([0.5, 0.0, np.sqrt(0.75)])
+    return pts + np.random.default_rng(seed).normal(0.0, noise_cm / 100, len(pts))[:, None] * ray
+
+
+def _height_above_ridge(pts: np.ndarray) -> np.ndarray:
+    """Signed distance of each point (rows) from the face of `_ridge` below or above it."""
+    x, z = pts[:, 0], pts[:, 2]
+    return np.where(x < 0, z, (z - 0.3 * x) / np.sqrt(1 + 0.3**2))
+
+
+def test_the_current_side_keeps_a_noise_free_surface_and_smooths_a_noisy_one():
+    config = jp.Config(fine=jp.FineStage(points=4096, smooth_current=True))
+    sides = {}
+    for noise in (0.0, 1.0):
+        pts = jnp.asarray(_ridge(noise).T)
+        side = current_side(pts, jnp.ones(pts.shape[1], bool), config)
+        live = np.asarray(side.live)
+        sides[noise] = np.asarray(side.points).T[live], np.asarray(side.smoothed).T[live]
+    raw, smoothed = sides[0.0]
+    np.testing.assert_allclose(smoothed, raw, atol=1e-12)  # planes through exact points: no move
+    raw, smoothed = sides[1.0]
+    moved = smoothed - raw
+    assert np.mean(np.any(moved != 0, axis=1)) == pytest.approx(0.7, abs=0.01)  # the face-like 70 %
+    # Away from the ridge, where a neighbourhood spans one face, the moved points (the others
+    # keep their noise: under noise the planarity rank is mostly noise).
+    away = (np.abs(raw[:, 0]) > 0.05) & np.any(moved != 0, axis=1)
+    rms_raw = np.sqrt(np.mean(_height_above_ridge(raw[away]) ** 2))
+    rms_smoothed = np.sqrt(np.mean(_height_above_ridge(smoothed[away]) ** 2))
+    assert rms_raw > 0.007  # ≈ 1 cm · cos 30°
+    assert rms_smoothed < 0.4 * rms_raw, (rms_smoothed, rms_raw)
+    # Each point moves along its face's normal, not along the surface (y is in both faces).
+    along, across = np.sqrt(np.mean(moved[away] ** 2, axis=0))[[1, 2]]
+    assert along < 0.25 * across, (along, across)
+
+
+def test_a_smoothed_current_side_needs_the_whole_surface():
+    with pytest.raises(ValueError, match="curr_slab = inf"):
+        jp.FineStage(curr_slab=2.0, smooth_current=True)
+    pts = jnp.asarray(_ridge(1.0).T)
+    cloud = jp.Cloud.from_points(pts.T + jnp.array([[0.0, 0.0, 5.0]]))
+    config = jp.Config(capacities=jp.Capacities(max_points=4096))
+    assert jp.Problem.build(cloud, cloud, config).fine_curr is None  # off by default
+    smooth = dataclasses.replace(config, fine=jp.FineStage(smooth_current=True))
+    side = jp.Problem.build(cloud, cloud, smooth).fine_curr
+    assert side is not None and int(side.live.sum()) == cloud.points.shape[0]
 
 
 # The tracking preset fits the whole cloud instead of the slabs around the cutting planes.
@@ -391,7 +445,8 @@ def test_a_noise_free_view_of_curved_surfaces_is_exact():
 def test_the_fine_passes_are_the_separate_runs(paper_clouds):
     """`_estimate.fine_passes` (one `lax.scan`, one fine stage in the program) gives what
     separate `fine_refine` calls give: run i from `starts[i]`, then, on this noise-free view
-    (RMS below `EXACT_RMS`), the better run polished against planes through the points. An
+    (RMS below `EXACT_RMS`), the better run polished against planes through the points with
+    the raw current points. An
     inactive run keeps its start and reports no work."""
     from jaxpose._estimate import better_fine, fine_passes
     from jaxpose._fine import EXACT_RMS
@@ -405,17 +460,17 @@ def test_the_fine_passes_are_the_separate_runs(paper_clouds):
     runs = jax.jit(lambda s: fine_passes(problem, config, s))(starts)
     assert runs.params.shape == (3, 6)
 
-    def run_on(start, surface):  # one run against the given planes
-        return fine_refine(problem, config, start, surface)
+    def run_on(start, surface, smooth=True):  # one run against the given planes
+        return fine_refine(problem, config, start, surface, smooth=smooth)
 
-    apart = jax.jit(run_on)
+    apart = jax.jit(run_on, static_argnums=2)
     separate = [apart(starts[i], problem.fine) for i in range(2)]
     for i, run in enumerate(separate):
         np.testing.assert_allclose(np.asarray(runs.params[i]), np.asarray(run.params), atol=1e-9)
         assert int(runs.steps[i]) == int(run.steps)
     best = better_fine(*separate)
     assert float(best.planar_rms) < EXACT_RMS
-    polish = apart(best.params, exact_surface(problem.fine))
+    polish = apart(best.params, exact_surface(problem.fine), False)  # the raw current points
     np.testing.assert_allclose(np.asarray(runs.params[2]), np.asarray(polish.params), atol=1e-9)
     idle = jax.jit(lambda s: fine_refine(problem, config, s, active=False))(starts[0])
     np.testing.assert_array_equal(np.asarray(idle.params), np.asarray(starts[0]))
