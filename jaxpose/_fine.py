@@ -564,8 +564,10 @@ def fine_refine(
     inlier = jnp.asarray(config.fine.inlier, dtype)
     b, live = select_current(problem, config, start, smooth)
     # The raw points measure the noise (the stop's σ̂, the result's RMS): smoothed residuals
-    # are correlated and smaller than the range noise (`CurrentSide`).
-    raw, _ = select_current(problem, config, start, smooth=False)
+    # are correlated and smaller than the range noise (`CurrentSide`). Without a smoothed side
+    # they are the fitted points themselves.
+    smoothing = problem.fine_curr is not None
+    raw = problem.fine_curr.points if smoothing else b
     scale = jnp.asarray(PARAMETER_SCALE, dtype)
     solver = least_squares_solver(config.fine.tol)
 
@@ -598,7 +600,7 @@ def fine_refine(
             y,
             step,
             lambda y_: root_w * _residuals(y_ * scale, b, matched, weight),
-            _residuals(y * scale, raw, matched, weight),
+            _residuals(y * scale, raw, matched, weight) if smoothing else r0,
             w0,
         )
         small = (moved <= ROUND_TOL) | (within_noise <= NOISE_STEP)
