@@ -75,6 +75,7 @@ from .tracking import Track as Track
 from .tracking import body_model as body_model
 from .tracking import identify as identify
 from .tracking import track as track
+from .tracking import track_against_model as track_against_model
 
 __all__ = [
     "Camera",
@@ -117,5 +118,6 @@ __all__ = [
     "targets",
     "to_moved_frame",
     "track",
+    "track_against_model",
     "true_displacement",
 ]

@@ -35,7 +35,7 @@ replaces them. Lengths in metres, angles in radians, frame n.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import equinox as eqx
 import jax
@@ -123,6 +123,27 @@ class FineCloud(eqx.Module):
     planar: Bool[Array, " K"]
     grid: VoxelGrid
     graph: Int[Array, "K k"]
+
+
+@runtime_checkable
+class SurfaceProblem(Protocol):
+    """What the fine stage and its covariance read of a problem: a `jaxpose.Problem`, or the
+    model side of a registration against a body model (`jaxpose.tracking._against_model`).
+
+    - `frame`: the plane frame n (`PlaneFrame`), in which the parameters p live.
+    - `fine`: the previous side (`FineCloud`, frame n).
+    - `curr`, `curr_valid`: the current points (frame n, `(3, M)`) and their mask.
+    - `fine_curr`: the smoothed current side (`CurrentSide`) or None.
+    - `d`, `planes`: the cell size (m) and the cutting planes, for the slabs.
+    """
+
+    frame: object
+    fine: FineCloud
+    curr: Array
+    curr_valid: Array
+    fine_curr: object
+    d: Array
+    planes: tuple
 
 
 class FineResult(eqx.Module):
@@ -641,6 +662,7 @@ def fine_refine(
 
 __all__ = [
     "CurrentSide",
+    "SurfaceProblem",
     "current_side",
     "FineCloud",
     "FineResult",

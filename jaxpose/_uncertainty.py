@@ -15,7 +15,7 @@ import jaxlie
 from jaxtyping import Array, ArrayLike, Float
 
 from ._config import Config
-from ._fine import fine_covariance
+from ._fine import SurfaceProblem, fine_covariance
 from ._objective import soft_score
 from ._poses import PARAMETER_SCALE, motion_from_displacement
 from ._problem import Problem
@@ -48,7 +48,7 @@ def covariance(p: Float[Array, "6"], problem: Problem, scale2: float) -> Float[A
 COVARIANCE_SCALE = 1.52
 
 
-def motion_covariance(problem: Problem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
+def motion_covariance(problem: SurfaceProblem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
     """Covariance of the camera-frame motion (R, t) that a fine-stage result p (frame n)
     measures: J Σ_p Jᵀ, with Σ_p the fine stage's least-squares covariance scaled by
     `COVARIANCE_SCALE` and J the Jacobian of p ↦ (log(R(p) R(p̂)ᵀ), t(p)) at p̂. The rotation as a

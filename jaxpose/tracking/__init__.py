@@ -6,9 +6,13 @@ then runs an error-state Kalman filter on SO(3) × R³ that gives attitude, angu
 acceleration, and the position and velocity of the first cloud's plane-frame origin.
 `identify(track, dt)` fits Euler's equations to the registrations: principal axes, inertia
 ratios, rate and centre of mass, with a prediction past the data. `body_model(clouds, track,
-dynamics)` fuses the registered clouds into a voxelised model in the principal frame.
+dynamics)` fuses the registered clouds into a voxelised model in the principal frame, and
+`track_against_model(clouds, track, dt)` registers every frame against that model as it grows.
 """
 
+from ._against_model import (
+    track_against_model as track_against_model,
+)
 from ._identify import (
     Dynamics as Dynamics,
 )
