@@ -244,8 +244,13 @@ def track_against_model(
     **Returns:** a [`jaxpose.Track`][] whose measurements are first frame → k, all against the
     model (so `keyframes` is 0 for every frame and `rotations` are the registrations
     themselves, not a chain); `status` is each registration's (`FrameRegistration`); a frame
-    that is not a success keeps its start and is not fused by the filter. `jp.identify`
-    takes it like any track.
+    that is not a success keeps its start and is not fused by the filter.
+
+    Not yet for `jp.identify`: this track's errors are the model's slow drift, which
+    `identify`'s error model (each registration's own noise plus its keyframe's shared error)
+    does not describe, so its covariance is too small. On the Chibis-M tumble of
+    `experiments/model_tracking.py` it reported `observable` with the inertia ratios 18 and
+    27 % off (docs, Tracking). Identify the chain's track.
 
     Python boundary: a loop over the keyframes, each a model built and its frames registered
     by compiled programs (one per capacity bucket).
