@@ -16,12 +16,15 @@ not against one noisy view. A surface seen again later (a tumble that turns a fa
 into view) is matched against every earlier view of it.
 
 **One registration** ([`register_frame`][]): the fine stage alone (`jaxpose._fine.fine_refine`,
-the default point-to-plane fit), from a start given by the chain: the chain's own measurement
-keyframe → k composed with the keyframe's model-registered motion. No pattern search: the
-chain has already resolved the motion to within its drift, far inside the fine stage's
-basin. The model's fine side ([`model_side`][]) is built once per keyframe, in the model's
-own plane frame, with `MODEL_POINTS` previous points (the model shows every side; a frame's
-view shows about half of them).
+the default point-to-plane fit), first from the motion of the last registrations carried on at
+their rate (`_predicted_start`), and where that fit is no success, from the chain's own
+measurement keyframe → k composed with the keyframe's model-registered motion
+(`_chain_start`). No pattern search: the chain has already resolved the motion to within its
+drift, inside the fine stage's basin. The rate's start comes first: between frames a few
+tens of milliseconds apart it is closer than the chain's, which carries the chain's own
+registration errors. The model's fine side ([`model_side`][]) is built once per keyframe, in
+the model's own plane frame, with `MODEL_POINTS` previous points (the model shows every side;
+a frame's view shows about half of them).
 
 **Frames** (camera frame c, metres): the motion from the first frame to frame k is
 x ↦ R_0k x + t_0k, as in [`jaxpose.Track`][].
@@ -57,7 +60,8 @@ the sampling of the surface a frame sees."""
 
 MIN_INLIERS = 0.5
 """Fewest of a frame's selected points within `FineStage.inlier` of the model for its
-registration to count (a view mostly of surface the model has not seen is left to the chain)."""
+registration to count (a view mostly of surface the model has not seen is not registered:
+it keeps its start and the filter does not fuse it)."""
 
 MODEL_VOXEL = 0.01
 """Default voxel edge of the model (m): about a ToF pixel's footprint at 5–6 m."""
@@ -74,10 +78,9 @@ class ModelSide(eqx.Module):
 
 class _ModelProblem(eqx.Module):
     """A `jaxpose._fine.SurfaceProblem`: the fields of a `Problem` that the fine stage and its
-    covariance read: the model's
-    side, the current cloud in frame n (`curr`, SoA, and `curr_valid`), the smoothed current
-    side if the config asks for it, and the cutting planes' geometry (`d`, `planes`; the
-    slabs are the whole surface by default)."""
+    covariance read. The model's side, the current cloud in frame n (`curr`, SoA, and
+    `curr_valid`), the smoothed current side if the config asks for it, and the cutting
+    planes' geometry (`d`, `planes`; the slabs are the whole surface by default)."""
 
     frame: PlaneFrame
     fine: FineCloud
@@ -192,7 +195,7 @@ def _fused(
 
 BASELINE = 5
 """Frames between the two registrations whose screw motion, carried on at a constant rate,
-predicts the next frame's motion (the second start of each registration)."""
+predicts the next frame's motion (the first start of each registration)."""
 
 
 def _chain_start(chain_R, chain_t, j, k, R_key, t_key):
