@@ -59,15 +59,23 @@ def drifted_chain(seq) -> jp.Track:
 
 
 @pytest.fixture(scope="module")
-def tumble():
-    """2 s of N5 tumbling at 20 °/s, 5 Hz, noise-free (11 frames, 40° in all), one frame lost."""
+def sequence():
+    """2 s of N5 tumbling at 20 °/s, 5 Hz, noise-free (11 frames, 40° in all), one frame lost,
+    and the drifted chain over it."""
     seq = simulate_sequence(jp.Camera.camcube2(), jp.targets.n5(), Tumble.n5(20.0), 2.0, 5.0)
     points = seq.clouds.points.at[LOST].add(jnp.array([1.0, 0.0, 0.0]))
-    clouds = jp.Cloud(points, seq.clouds.valid)
-    chain = drifted_chain(seq)
+    return seq, jp.Cloud(points, seq.clouds.valid), drifted_chain(seq)
+
+
+@pytest.fixture(scope="module")
+def tumble(sequence):
+    """The sequence registered against the model (compiles the registration: ≈ 50 s on 2 cores,
+    hence `slow`: an option off the default path)."""
+    seq, clouds, chain = sequence
     return seq, clouds, chain, jp.track_against_model(clouds, chain, 0.2)
 
 
+@pytest.mark.slow
 def test_the_model_takes_out_the_chains_drift(tumble):
     seq, _, chain, model = tumble
     G = seq.rotations
@@ -85,6 +93,7 @@ def test_the_model_takes_out_the_chains_drift(tumble):
     assert np.all(np.isfinite(np.asarray(model.attitude))) and np.all(np.isfinite(np.asarray(model.rate)))
 
 
+@pytest.mark.slow
 def test_a_frame_away_from_the_model_is_not_a_registration(tumble):
     _, _, chain, model = tumble
     status = np.asarray(model.status)
@@ -94,6 +103,7 @@ def test_a_frame_away_from_the_model_is_not_a_registration(tumble):
     assert int(model.filter_status[LOST]) == jp.tracking.FILTER_NO_ESTIMATE
 
 
+@pytest.mark.slow
 def test_register_frame_shapes_and_a_start_at_the_truth(tumble):
     """One registration from the true motion stays there, with the shapes its annotations name."""
     seq, clouds, _, _ = tumble
@@ -108,8 +118,8 @@ def test_register_frame_shapes_and_a_start_at_the_truth(tumble):
     assert rotation_error_deg(reg.rotation[None], R[None])[0] < 0.01
 
 
-def test_track_against_model_checks_its_input(tumble):
-    seq, clouds, chain, _ = tumble
+def test_track_against_model_checks_its_input(sequence):
+    _, clouds, chain = sequence
     # Not a Track: a ValueError, or the run-time type check's TypeError where it is on (tests).
     with pytest.raises((ValueError, TypeError), match="Track"):
         jp.track_against_model(clouds, chain.rotations, 0.2)
