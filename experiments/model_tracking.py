@@ -14,6 +14,12 @@ every frame is registered against the growing body-frame model with
 - the time of `track_against_model`, compile included (one process).
 
     uv run python experiments/model_tracking.py [case ...]  →  results/model_tracking.{json,md}
+    uv run python experiments/model_tracking.py refit       →  the identify columns again
+
+`refit` runs `jp.identify` again on both saved tracks of the last run (the chain's in
+`identify_tracks.npz`, the model's in `model_tracking_tracks.npz`) and rewrites the tables
+with the registration columns, their seconds and machine kept from the last run's JSON (the
+refit's machine under `refit_machine`): what an `identify` change needs, without tracking.
 
 The model's tracks (each frame's motion, registration flag and covariance) go to
 `results/model_tracking_tracks.npz` (with the cases' names in the file names when only some
@@ -22,13 +28,14 @@ run), in the layout of `identify_tracks.npz`.
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _common import RESULTS, write_json
+from _common import RESULTS, machine, write_json
 from identify import CASES, DISTANCE, make_tumble
 
 import jaxpose as jp
@@ -38,28 +45,18 @@ from jaxpose.sim._sequence import tumble_poses
 
 
 def saved_track(saved, case: str) -> jp.Track:
-    """The chain of the `identify.py` run as a `Track` (its measurements; the filtered fields
-    are not saved and are left at zero: `track_against_model` and `identify` do not read them)."""
+    """The chain of the `identify.py` run as a `Track` of its measurements (the filtered fields
+    are not saved; `track_against_model` and `identify` read the measurements alone)."""
 
     def get(name):
         return jnp.asarray(saved[f"{case}/{name}"])
 
-    R, registered = get("rotations"), get("registered")
-    T = R.shape[0]
-    zeros = jnp.zeros((T, 3), R.dtype)
-    return jp.Track(
-        rotations=R,
-        points=get("points"),
-        status=jnp.where(registered, SUCCESS, NOT_CONVERGED).astype(jnp.int32),
-        attitude=R,
-        rate=zeros,
-        spin_accel=zeros,
-        position=zeros,
-        velocity=zeros,
-        rate_std=zeros,
-        filter_status=jnp.zeros(T, jnp.int32),
-        keyframes=get("keyframes"),
-        measurement_cov=get("measurement_cov"),
+    return jp.Track.of_measurements(
+        get("rotations"),
+        get("points"),
+        get("keyframes"),
+        get("measurement_cov"),
+        status=jnp.where(get("registered"), SUCCESS, NOT_CONVERGED),
     )
 
 
@@ -151,6 +148,26 @@ def markdown(rows: list[dict], duration: float, rate_hz: float) -> str:
     return head + "\n".join(lines) + "\n"
 
 
+def refit(cases=CASES):
+    """`identify` again on the last run's saved tracks, chain and model (see the module)."""
+    saved, models = np.load(RESULTS / "identify_tracks.npz"), np.load(RESULTS / "model_tracking_tracks.npz")
+    last = json.loads((RESULTS / "model_tracking.json").read_text())
+    dt = float(saved["dt"])
+    rows = [row for row in last["rows"] if row["case"] in cases]
+    for row in rows:
+        case = row["case"]
+        row["identify_chain"] = dynamics_errors(jp.identify(saved_track(saved, case), dt), saved, case)
+        row["identify_model"] = dynamics_errors(jp.identify(saved_track(models, case), dt), saved, case)
+        print(row, flush=True)
+    duration = (saved[f"{cases[0]}/rotations"].shape[0] - 1) * dt
+    text = markdown(rows, duration, 1 / dt)
+    print(text)
+    (RESULTS / "model_tracking.md").write_text(text)
+    (RESULTS / "model_tracking.json").write_text(
+        json.dumps({"machine": last["machine"], "refit_machine": machine(), "rows": rows}, indent=2)
+    )
+
+
 def main(cases=CASES):
     saved = np.load(RESULTS / "identify_tracks.npz")
     results = [one_case(saved, case) for case in cases]
@@ -167,4 +184,7 @@ def main(cases=CASES):
 
 
 if __name__ == "__main__":
-    main(tuple(sys.argv[1:]) or CASES)
+    if sys.argv[1:2] == ["refit"]:
+        refit()
+    else:
+        main(tuple(sys.argv[1:]) or CASES)

@@ -62,6 +62,15 @@ class Cloud(eqx.Module):
         """Number of valid points (an array, so it works under jit)."""
         return jnp.sum(self.valid)
 
+    def packed(self, size: int) -> Cloud:
+        """This single cloud with its valid points moved to the front of `size` rows (order
+        kept, the rest zeroed and invalid), so that later stages touch `size` rows, not the
+        whole sensor frame. Points beyond `size` are dropped: callers compare `num_valid`
+        with `size` and report the overflow. Static shapes (works under jit and vmap)."""
+        (keep,) = jnp.nonzero(self.valid, size=size, fill_value=0)
+        live = jnp.arange(size) < self.num_valid
+        return Cloud(jnp.where(live[:, None], self.masked_points[keep], 0), live)
+
     def compact(self) -> np.ndarray:
         """The valid points as a plain `(n, 3)` numpy array (outside jit only)."""
         return np.asarray(self.points)[np.asarray(self.valid)]

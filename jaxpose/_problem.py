@@ -362,9 +362,8 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
     # (41 616 pixels for 4 194 points on the paper's N5). Rows stay in order. (On overflow the
     # frame is that of the first max_prev_points points, and the status says so.)
     n_prev = jnp.sum(prev.valid)
-    (keep,) = jnp.nonzero(prev.valid, size=config.capacities.max_prev_points, fill_value=0)
-    live = jnp.arange(config.capacities.max_prev_points) < n_prev
-    prev = Cloud(Cloud(prev.points[keep], live).masked_points, live)
+    prev = prev.packed(config.capacities.max_prev_points)
+    live = prev.valid
     frame = plane_frame(prev)
     A = jnp.where(live[:, None], frame.to_frame(prev.points), 0.0)
     status = jnp.where(frame.ok, 0, PROBLEM_FRAME) | jnp.where(
@@ -475,10 +474,9 @@ def _current_points(frame: PlaneFrame, curr: Cloud, config: Config, dtype):
     n_curr = jnp.sum(curr.valid)
     status = jnp.where(n_curr > config.capacities.max_points, PROBLEM_POINTS_OVERFLOW, 0)
     status = status | jnp.where(n_curr < MIN_POINTS, PROBLEM_FEW_CURRENT, 0)
-    (keep,) = jnp.nonzero(curr.valid, size=config.capacities.max_points, fill_value=0)
-    curr_valid = jnp.arange(config.capacities.max_points) < n_curr
-    B = frame.to_frame(curr.points[keep].astype(dtype))
-    return jnp.where(curr_valid[:, None], B, 0.0).T, curr_valid, status
+    packed = curr.packed(config.capacities.max_points)
+    B = frame.to_frame(packed.points.astype(dtype))
+    return jnp.where(packed.valid[:, None], B, 0.0).T, packed.valid, status
 
 
 def _problem_at_level(

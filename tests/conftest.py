@@ -38,6 +38,10 @@ DEG = np.pi / 180
 PAPER_POSE_NAMES = {"previous": "previous", "variant1": "variant 1", "variant2": "variant 2"}
 """Short fixture keys for the paper's poses (jaxpose.sim.PAPER_POSES)."""
 T_PAPER = np.asarray(PAPER_T)
+PAPER_CAPACITIES = jp.Capacities(max_points=5120, max_prev_points=8192, grid_cells=128, max_cells=512)
+"""Capacities that hold both paper shapes' pairs (what `sized_config` gives N5): tests that
+fix them share one compiled program per preset across the paper's pairs and files (the
+session's persistent compilation cache), where sizing from each pair compiles N1's and N5's."""
 
 
 def paper_rotation(name):

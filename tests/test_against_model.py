@@ -41,20 +41,8 @@ def drifted_chain(seq) -> jp.Track:
     )
     R = jnp.einsum("tij,tjk->tik", turn, R_true)
     points = jnp.einsum("tij,j->ti", R, p[0]) + (p - jnp.einsum("tij,j->ti", R_true, p[0]))
-    zeros = jnp.zeros((T, 3))
-    return jp.Track(
-        rotations=R,
-        points=points,
-        status=jnp.full(T, SUCCESS, jnp.int32),
-        attitude=R,
-        rate=zeros,
-        spin_accel=zeros,
-        position=points,
-        velocity=zeros,
-        rate_std=zeros,
-        filter_status=jnp.zeros(T, jnp.int32),
-        keyframes=jnp.asarray(keyframes, jnp.int32),
-        measurement_cov=jnp.broadcast_to(jnp.eye(6) * 1e-6, (T, 6, 6)),
+    return jp.Track.of_measurements(
+        R, points, jnp.asarray(keyframes, jnp.int32), jnp.broadcast_to(jnp.eye(6) * 1e-6, (T, 6, 6))
     )
 
 
@@ -111,7 +99,7 @@ def test_register_frame_shapes_and_a_start_at_the_truth(tumble):
     config = model_config(sized_sequence_config(clouds, jp.Config()))
     side = model_side(clouds.points[0], clouds.valid[0], config)
     R = G[2] @ G[0].T
-    reg = register_frame(side, jp.Cloud(clouds.points[2], clouds.valid[2]), R[None], (p[2] - R @ p[0])[None], config)
+    reg = register_frame(side, jp.Cloud(clouds.points[2], clouds.valid[2]), R, p[2] - R @ p[0], config)
     assert isinstance(reg, FrameRegistration)
     assert reg.rotation.shape == (3, 3) and reg.translation.shape == (3,) and reg.covariance.shape == (6, 6)
     assert int(reg.status) == SUCCESS and float(reg.inliers) > 0.9

@@ -64,21 +64,7 @@ def exact_track(seq) -> jp.Track:
     G, p = seq.rotations, seq.positions
     T = G.shape[0]
     R = jnp.einsum("tij,kj->tik", G, G[0])
-    zeros = jnp.zeros((T, 3))
-    return jp.Track(
-        rotations=R,
-        points=p,
-        status=jnp.zeros(T, jnp.int32),
-        attitude=R,
-        rate=zeros,
-        spin_accel=zeros,
-        position=p,
-        velocity=zeros,
-        rate_std=zeros,
-        filter_status=jnp.zeros(T, jnp.int32),
-        keyframes=jnp.zeros(T, jnp.int32),
-        measurement_cov=jnp.broadcast_to(jnp.eye(6), (T, 6, 6)),
-    )
+    return jp.Track.of_measurements(R, p, jnp.zeros(T, jnp.int32), jnp.broadcast_to(jnp.eye(6), (T, 6, 6)))
 
 
 def test_body_model_of_a_track_is_the_fusion_of_its_frames(tumble_clouds):

@@ -12,7 +12,7 @@ import pytest
 import jaxpose as jp
 from jaxpose import _capture as capture
 from jaxpose._estimate import estimate_problem
-from jaxpose._problem import sized_config
+from jaxpose._problem import sized_batch_config, sized_config
 from jaxpose._rotations import signed_permutations, super_fibonacci
 from jaxpose.evaluation import capture as benchmark
 from jaxpose.evaluation import realistic
@@ -133,25 +133,11 @@ def test_half_turns_are_the_symmetries_of_a_box_seen_from_a_corner():
         assert np.all(np.abs(moved) <= half[:, None] + 1e-9)
 
 
-def test_capture_reports_every_equivalent_motion_of_n5_and_flags_it():
-    """N5 maps onto itself under half turns about its three axes, so four motions explain a
-    pair. On the capture benchmark's noise-free N5 pair of the 30–60° bin (seed 0), all four are
-    among the distinct hypotheses, the estimate is one of them, and it is flagged ambiguous,
-    never a success."""
+@pytest.fixture(scope="module")
+def n5_turn():
+    """The capture benchmark's noise-free N5 pair of the 30–60° bin (seed 0)."""
     cases, _ = benchmark.make_cases(1, names=("n5",), levels=(0.0,))
-    case = next(c for c in cases if c.bin == (30.0, 60.0))
-    est = jp.estimate(case.prev, case.curr, jp.Config.capture(), key=jax.random.key(0))
-    H = est.hypotheses
-    distinct = np.asarray(H.distinct)
-    motions = [(np.asarray(H.rotation[k]), np.asarray(H.translation[k])) for k in np.flatnonzero(distinct)]
-    for R, t in case.equivalents():
-        truth = benchmark._as_truth(case, R, t)
-        assert any(realistic.errors(truth, Rh, th)["found"] for Rh, th in motions)
-    assert any(
-        realistic.errors(benchmark._as_truth(case, R, t), est.rotation, est.translation)["found"]
-        for R, t in case.equivalents()
-    )
-    assert bool(est.ambiguous) and not bool(est.success)
+    return next(c for c in cases if c.bin == (30.0, 60.0))
 
 
 @pytest.fixture(scope="module")
@@ -167,9 +153,36 @@ def large_turn(fragment_turns):
     return next(c for c in fragment_turns if c.bin == (90.0, 135.0))
 
 
-def test_consistency_prefers_the_truth(large_turn):
-    config = sized_config(large_turn.prev, large_turn.curr, jp.Config.capture())
-    problem = jp.Problem.build(large_turn.prev, large_turn.curr, config)
+@pytest.fixture(scope="module")
+def capture_config(n5_turn, large_turn):
+    """`Config.capture()` sized once for both capture pairs of this module, so that they share
+    one compiled program (each pair sized on its own compiles one of ≈ 30 s)."""
+    return sized_batch_config([(c.prev, c.curr) for c in (n5_turn, large_turn)], jp.Config.capture())
+
+
+def test_capture_reports_every_equivalent_motion_of_n5_and_flags_it(n5_turn, capture_config):
+    """N5 maps onto itself under half turns about its three axes, so four motions explain a
+    pair. On the capture benchmark's noise-free N5 pair of the 30–60° bin (seed 0), all four are
+    among the distinct hypotheses, the estimate is one of them, and it is flagged ambiguous,
+    never a success."""
+    case = n5_turn
+    est = jp.estimate(case.prev, case.curr, capture_config, key=jax.random.key(0))
+    H = est.hypotheses
+    distinct = np.asarray(H.distinct)
+    motions = [(np.asarray(H.rotation[k]), np.asarray(H.translation[k])) for k in np.flatnonzero(distinct)]
+    for R, t in case.equivalents():
+        truth = benchmark._as_truth(case, R, t)
+        assert any(realistic.errors(truth, Rh, th)["found"] for Rh, th in motions)
+    assert any(
+        realistic.errors(benchmark._as_truth(case, R, t), est.rotation, est.translation)["found"]
+        for R, t in case.equivalents()
+    )
+    assert bool(est.ambiguous) and not bool(est.success)
+
+
+@pytest.mark.slow  # a part of the capture option, proven end to end by the large turn below
+def test_consistency_prefers_the_truth(large_turn, capture_config):
+    problem = jp.Problem.build(large_turn.prev, large_turn.curr, capture_config)
     truth = jp.displacement_from_motion(
         problem.frame.origin, problem.frame.axes, large_turn.rotation, large_turn.translation
     )
@@ -182,9 +195,9 @@ def test_consistency_prefers_the_truth(large_turn):
         assert score(wrong) < at_truth - 0.2
 
 
-def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn):
+def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn, capture_config):
     assert large_turn.motion_deg > 90
-    est = jp.estimate(large_turn.prev, large_turn.curr, jp.Config.capture(), key=jax.random.key(0))
+    est = jp.estimate(large_turn.prev, large_turn.curr, capture_config, key=jax.random.key(0))
     errors = realistic.errors(large_turn, est.rotation, est.translation)
     assert errors["rotation_error_deg"] < 0.1 and errors["centroid_error_cm"] < 1.0, errors
     H = est.hypotheses

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import T_PAPER, paper_rotation
+from conftest import PAPER_CAPACITIES, T_PAPER, paper_rotation
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -26,7 +26,7 @@ from jaxpose._fine import (
 )
 from jaxpose._problem import sized_config
 
-CONFIG = jp.Config.fast(capacities=jp.Capacities(max_points=5120))
+CONFIG = jp.Config.fast(capacities=PAPER_CAPACITIES)  # fixed capacities: the tests share one compile
 
 
 @settings(max_examples=25, deadline=None)
@@ -203,7 +203,7 @@ def test_a_smoothed_current_side_needs_the_whole_surface():
 WHOLE_CLOUD = jp.Config.tracking(
     search=jp.GlobalSearch(coarse_factor=1, population=16, generations=20),
     refine=jp.Refine(max_steps=40),
-    capacities=jp.Capacities(max_points=5120),
+    capacities=PAPER_CAPACITIES,
 )
 
 

@@ -2,13 +2,13 @@
 
 import jax
 import numpy as np
-from conftest import T_PAPER, paper_rotation
+from conftest import PAPER_CAPACITIES, T_PAPER, paper_rotation
 
 import jaxpose as jp
 from jaxpose._search import local_refine
 from jaxpose._uncertainty import covariance, curvature, nees
 
-CONFIG = jp.Config.fast(capacities=jp.Capacities(max_points=5120))
+CONFIG = jp.Config.fast(capacities=PAPER_CAPACITIES)  # fixed capacities: the tests share one compile
 
 
 def test_curvature_at_the_optimum_is_positive_definite_and_matches_finite_differences(paper_clouds):

@@ -43,12 +43,11 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from .._checks import is_concrete
 from .._cloud import Cloud
 from .._config import Config
-from .._estimate import LOW_SCORE, NON_FINITE, NOT_CONVERGED, SUCCESS, UNCERTAIN, is_uncertain, prefers
+from .._estimate import LOW_SCORE, NON_FINITE, NOT_CONVERGED, SUCCESS, UNCERTAIN, is_uncertain
 from .._fine import CurrentSide, FineCloud, current_side, fine_cloud, fine_refine
 from .._frame import PlaneFrame, plane_frame
 from .._poses import displacement_from_motion, motion_from_displacement
 from .._problem import _current_points, sized_sequence_config
-from .._tree import tree_select
 from .._uncertainty import motion_covariance
 from ._model import into_model_frame, voxel_means
 from ._track import Chain, Track, filter_keyframes, measurement_usable, predicted_motion
@@ -125,12 +124,10 @@ def model_side(points: Float[Array, "M 3"], valid: Bool[Array, " M"], config: Co
 
 @eqx.filter_jit
 def register_frame(
-    side: ModelSide, cloud: Cloud, rotations: Float[Array, "S 3 3"], translations: Float[Array, "S 3"], config: Config
+    side: ModelSide, cloud: Cloud, rotation: Float[Array, "3 3"], translation: Float[Array, "3"], config: Config
 ) -> FrameRegistration:
-    """Fit frame k's cloud (frame c) to the model with the fine stage from each of S starting
-    motions (`rotations`, `translations`: first frame → k, frame c, metres) and keep the fit
-    that explains more of the cloud (`jaxpose._estimate.prefers`: more inliers, then a smaller
-    RMS). Pure and jittable."""
+    """Fit frame k's cloud (frame c) to the model with the fine stage from the starting motion
+    (`rotation`, `translation`: first frame → k, frame c, metres). Pure and jittable."""
     frame = side.frame
     dtype = side.fine.points.dtype
     curr, curr_valid, _ = _current_points(frame, cloud, config, dtype)
@@ -143,13 +140,8 @@ def register_frame(
         fine_curr=current_side(curr, curr_valid, config),
         planes=config.patterns.planes(),
     )
-    to_p = jax.vmap(lambda R, t: displacement_from_motion(frame.origin, frame.axes, R, t))
-    starts = to_p(rotations.astype(dtype), translations.astype(dtype))
-    fits = jax.vmap(lambda start: fine_refine(problem, config, start))(starts)
-    fit, start = jax.tree.map(lambda x: x[0], (fits, starts))
-    for i in range(1, starts.shape[0]):
-        other = jax.tree.map(lambda x, i=i: x[i], fits)
-        fit, start = tree_select(prefers(fit, other), (other, starts[i]), (fit, start))
+    start = displacement_from_motion(frame.origin, frame.axes, rotation.astype(dtype), translation.astype(dtype))
+    fit = fine_refine(problem, config, start)
     finite = jnp.all(jnp.isfinite(fit.params))
     p = jnp.where(finite, fit.params, start)
     R, t = motion_from_displacement(frame.origin, frame.axes, p)
@@ -164,14 +156,6 @@ def register_frame(
         ),
     )
     return FrameRegistration(R, t, status.astype(jnp.int32), cov, fit.inliers)
-
-
-def _compacted(cloud: Cloud, size: int) -> tuple[Float[Array, "P 3"], Bool[Array, " P"]]:
-    """A cloud's valid points moved to the front of `size` rows (zero padded) and their mask."""
-    n = jnp.sum(cloud.valid)
-    (keep,) = jnp.nonzero(cloud.valid, size=size, fill_value=0)
-    live = jnp.arange(size) < n
-    return jnp.where(live[:, None], cloud.points[keep], 0.0), live
 
 
 @jax.jit
@@ -249,11 +233,10 @@ def track_against_model(
     themselves, not a chain); `status` is each registration's (`FrameRegistration`); a frame
     that is not a success keeps its start and is not fused by the filter.
 
-    Not yet for `jp.identify`: this track's errors are the model's slow drift, which
-    `identify`'s error model (each registration's own noise plus its keyframe's shared error)
-    does not describe, so its covariance is too small. On the Chibis-M tumble of
-    `experiments/model_tracking.py` it reported `observable` with the inertia ratios 18 and
-    27 % off (docs, Tracking). Identify the chain's track.
+    Not better for `jp.identify` than the chain's track: its errors are the model's slow
+    drift, shared by many frames; `identify`'s split check raises the covariance for it (on
+    the tumbles of `experiments/model_tracking.py` none was reported observable), but the
+    estimates are no closer (docs, Tracking). Identify the chain's track.
 
     Python boundary: a loop over the keyframes, each a model built and its frames registered
     by compiled programs (one per capacity bucket).
@@ -283,9 +266,8 @@ def _register_all(clouds: Cloud, track: Track, config: Config, voxel: float) -> 
     keyframes, registered = np.asarray(track.keyframes), np.asarray(track.registered())
     order = [0] + [int(j) for j in np.unique(keyframes) if j > 0 and registered[j]]
     size = config.capacities.max_points
-    model_points, model_valid = jax.vmap(lambda p, v: _compacted(Cloud(p, v), size))(
-        clouds.points[np.asarray(order)], clouds.valid[np.asarray(order)]
-    )
+    models = jax.vmap(lambda c: c.packed(size))(jax.tree.map(lambda x: x[np.asarray(order)], clouds))
+    model_points, model_valid = models.points, models.valid
     dtype = model_points.dtype
     R = np.tile(np.eye(3, dtype=dtype), (T, 1, 1))
     t = np.zeros((T, 3), dtype)
@@ -304,10 +286,10 @@ def _register_all(clouds: Cloud, track: Track, config: Config, voxel: float) -> 
         for k in (int(k) for k in np.nonzero(keyframes == j)[0] if k != 0):
             cloud = jax.tree.map(lambda x, k=k: x[k], clouds)
             by_rate = _predicted_start(R, t, done, k)
-            reg = register_frame(side, cloud, *(x[None] for x in by_rate), config)
+            reg = register_frame(side, cloud, *by_rate, config)
             if int(reg.status) != SUCCESS:
                 by_chain = _chain_start(chain_R, chain_t, j, k, R[j], t[j]) if registered[k] else (R[0], t[0])
-                again = register_frame(side, cloud, *(x[None] for x in by_chain), config)
+                again = register_frame(side, cloud, *by_chain, config)
                 reg = again if int(again.status) == SUCCESS else reg
             status[k], inliers[k] = int(reg.status), float(reg.inliers)
             cov[k] = np.asarray(reg.covariance)

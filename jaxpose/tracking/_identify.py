@@ -47,8 +47,14 @@ with σ̂² the whitened, decorrelated residuals' variance (1 when the measureme
 are right), times a design effect: whatever of a keyframe's shared noise the decorrelation
 left makes its frames' residuals move together, so they count as fewer independent ones. The
 eigenvalues of JᵀJ are floored, so that a direction the data leave free gets a huge
-variance, not none. A spin about a principal axis leaves the ratios unobservable: the body
-rate's direction does not move. `observable` is False when the fitted body rate's direction
+variance, not none. *Split check:* an error that wanders slowly over the window (a track
+against a drifting body-frame model) looks like other dynamics, so the fit absorbs it and no
+residual shows it. Two more rounds of the same least-squares program fit each half of the
+window alone, from the whole window's solution; where their ratios disagree by more than
+their own standard deviations allow (χ² of the difference, `_split_inflation`), the
+attitude covariance is multiplied by that χ². Consistent halves leave it as it is.
+A spin about a principal axis leaves the ratios unobservable: the body rate's direction does
+not move. `observable` is False when the fitted body rate's direction
 stays within `MIN_EXCITATION` of its mean, when a ratio's standard deviation exceeds `MAX_RATIO_REL_STD`
 (1 %) of it, or when the ratios break a rigid body's J1 + J2 ≥ J3. The ratios are then not to be trusted.
 Two nearly equal moments leave their two axes free to turn about the third: their
@@ -408,11 +414,14 @@ def _decorrelated_residuals(theta, args):
     return decorrelated(_rotation_residuals(theta, data), used, references, ratio)
 
 
-def _attitude_covariance(data, axes, moments, omega, ratio):
+def _attitude_covariance(data, axes, moments, omega, ratio, halves, half_scales):
     """Covariance over (δaxes (3), ratios (2), ω (3)) at the sorted solution: σ̂² (JᵀJ)⁻¹ over
     the whitened residuals decorrelated with the shared-error ratio `ratio` (σ̂² their
     variance: 1 when the measurement covariances are right), times the residuals'
-    `_design_effect`; and the RMS of the unwhitened rotation residuals (rad)."""
+    `_design_effect`; the RMS of the unwhitened rotation residuals (rad); and the two
+    ratios' variances from each of the frame masks `halves` (2, T) alone, σ̂_h² (J_hᵀJ_h)⁻¹
+    with the whole window's Jacobian rows and each half's own residual variance
+    `half_scales` (2,) (`_residual_variance` of its fit; for `_split_inflation`)."""
     times, rotations, used, references, whiten, _, _, orbit = data
 
     def residuals(phi, weights):
@@ -426,7 +435,8 @@ def _attitude_covariance(data, axes, moments, omega, ratio):
     r = residuals(phi, whiten)
     jac = jax.jacfwd(residuals)(phi, whiten)
     n = 3 * jnp.sum(used)
-    variance = jnp.sum(r**2) / jnp.maximum(n - 8, 1) * _design_effect(r.reshape(-1, 3), used, references)
+    variance = _residual_variance(r.reshape(-1, 3), used, references)
+    half_variances = jax.vmap(lambda mask, scale: scale * _ratio_variances(jac, mask))(halves, half_scales)
     raw = _rotation_residuals(
         jnp.concatenate([jnp.zeros(5, omega.dtype), omega]),
         (
@@ -440,7 +450,41 @@ def _attitude_covariance(data, axes, moments, omega, ratio):
             orbit,
         ),
     )
-    return variance * _inverse_information(jac.T @ jac), jnp.sqrt(jnp.sum(raw**2) / jnp.maximum(n, 1))
+    return variance * _inverse_information(jac.T @ jac), jnp.sqrt(jnp.sum(raw**2) / jnp.maximum(n, 1)), half_variances
+
+
+def _sorted_ratios(base_moments: Float[Array, "3"], log_factors: Float[Array, "2"]) -> Float[Array, "2"]:
+    """(J1/J3, J2/J3) of `_moments`, ordered J1 ≤ J2 ≤ J3."""
+    moments = jnp.sort(_moments(base_moments, log_factors))
+    return moments[:2] / moments[2]
+
+
+def _residual_variance(residuals: Float[Array, "T 3"], used: Bool[Array, " T"], references) -> Float[Array, ""]:
+    """σ̂² of a fit's whitened, decorrelated residuals over its `used` frames, times their
+    `_design_effect` (8 parameters fitted)."""
+    n = 3 * jnp.sum(used)
+    r = residuals * used[:, None]
+    return jnp.sum(r**2) / jnp.maximum(n - 8, 1) * _design_effect(r, used, references)
+
+
+def _ratio_variances(jac: Float[Array, "R 8"], mask: Bool[Array, " T"]) -> Float[Array, "2"]:
+    """diag((J_mᵀJ_m)⁻¹) of the ratios over the rows of the frames in `mask` (3 per frame)."""
+    rows = jnp.repeat(mask, 3).astype(jac.dtype)
+    return jnp.diag(_inverse_information((jac * rows[:, None]).T @ jac))[3:5]
+
+
+def _split_inflation(ratios: Float[Array, "2 2"], variances: Float[Array, "2 2"]) -> Float[Array, ""]:
+    """The factor (≥ 1) on the whole window's attitude covariance: how much more the two half
+    windows' ratios disagree than their own covariances allow, max over the two ratios of
+    (r_a − r_b)² / (σ_a² + σ_b²).
+
+    Why: an error that wanders slowly (a track against a drifting body-frame model) looks like
+    other dynamics, so the fit absorbs it and no residual shows it; each half, pulled by its
+    own part of the error, lands elsewhere. Exact or independent measurements leave the factor
+    about 1. A half whose fit or covariance is not finite leaves it at 1."""
+    chi2 = (ratios[0] - ratios[1]) ** 2 / jnp.maximum(variances[0] + variances[1], jnp.finfo(ratios.dtype).tiny)
+    factor = jnp.max(jnp.where(jnp.isfinite(chi2), chi2, 1.0))
+    return jnp.maximum(factor, 1.0)
 
 
 def _inverse_information(info: Float[Array, "n n"]) -> Float[Array, "n n"]:
@@ -646,28 +690,40 @@ def _identify_motion(
     axes_s, moments_s, omega_s = (jnp.stack(part) for part in zip(*starts, strict=True))
     n_starts = len(starts)
 
+    later = times >= (times[0] + times[-1]) / 2
+    halves = jnp.stack([used & ~later, used & later])
+    n_rounds = n_starts + shared_rounds
+
     def one_fit(carry, index):
         """Round `index` < n_starts: a fit from that start, the registrations independent,
-        kept when it costs less than the best so far. Later rounds: a refit of the kept one
-        for the keyframes' shared error. One least-squares program serves every round."""
-        theta, axes0, moments0, cost, _, _ = carry
-        first = index < n_starts
+        kept when it costs less than the best so far. Then `shared_rounds` refits of the kept
+        one for the keyframes' shared error. The last two rounds fit each half of the window
+        alone from the kept fit and leave it as it is (`_split_inflation`). One least-squares
+        program serves every round."""
+        theta, axes0, moments0, cost, _, ratio_kept = carry
+        first, half = index < n_starts, index >= n_rounds
         k = jnp.minimum(index, n_starts - 1)
         base_axes, base_moments = jnp.where(first, axes_s[k], axes0), jnp.where(first, moments_s[k], moments0)
         data = (times, rotations, used, references, whiten, base_axes, base_moments, orbit)
-        # The start rounds fit the registrations as independent; only a refit needs the ratio
-        # (a cond, so that the start rounds skip its ODE solve).
-        ratio = jax.lax.cond(
-            first,
-            lambda: jnp.zeros((), times.dtype),
-            lambda: shared_variance_ratio(_rotation_residuals(theta, data), used, references),
+        # The start rounds fit the registrations as independent, the half rounds keep the last
+        # ratio; only a refit estimates it (a switch, so that the other rounds skip its ODE solve).
+        ratio = jax.lax.switch(
+            jnp.where(first, 0, jnp.where(half, 1, 2)),
+            [
+                lambda: jnp.zeros((), times.dtype),
+                lambda: ratio_kept,
+                lambda: shared_variance_ratio(_rotation_residuals(theta, data), used, references),
+            ],
         )
+        mask = jnp.where(half, halves[jnp.clip(index - n_rounds, 0, 1)], used)
+        fit_data = (times, rotations, mask, references, whiten, base_axes, base_moments, orbit)
         start = jnp.where(first, jnp.concatenate([jnp.zeros(5, times.dtype), omega_s[k]]), theta)
-        sol = solve(start, data, ratio)
+        sol = solve(start, fit_data, ratio)
         new_cost = jnp.sum(_rotation_residuals(sol.value, data) ** 2)
         new_cost = jnp.where(jnp.isfinite(new_cost), new_cost, jnp.inf)
         new = (sol.value, base_axes, base_moments, new_cost, sol.result, ratio)
-        return tree_select(~first | (new_cost < cost), new, carry), None
+        keep_new = ~half & (~first | (new_cost < cost))
+        return tree_select(keep_new, new, carry), sol.value
 
     initial = (
         jnp.concatenate([jnp.zeros(5, times.dtype), omega_s[0]]),
@@ -677,12 +733,25 @@ def _identify_motion(
         optx.RESULTS.successful,
         jnp.zeros((), times.dtype),
     )
-    (theta, axes0, moments0, _, result, ratio), _ = jax.lax.scan(one_fit, initial, jnp.arange(n_starts + shared_rounds))
+    (theta, axes0, moments0, _, result, ratio), fits = jax.lax.scan(one_fit, initial, jnp.arange(n_rounds + 2))
     data = (times, rotations, used, references, whiten, axes0, moments0, orbit)
     axes = jaxlie.SO3.exp(theta[:3]).as_matrix() @ axes0
     axes, moments = _sorted(axes, _moments(moments0, theta[3:5]))
     omega = theta[5:8]
-    cov_attitude, rotation_rms = _attitude_covariance(data, axes, moments, omega, ratio)
+    half_ratios = jax.vmap(lambda value: _sorted_ratios(moments0, value[3:5]))(fits[-2:])
+    half_scales = jax.vmap(
+        lambda value, mask: _residual_variance(
+            _decorrelated_residuals(
+                value, ((times, rotations, mask, references, whiten, axes0, moments0, orbit), ratio)
+            ),
+            mask,
+            references,
+        )
+    )(fits[-2:], halves)
+    cov_attitude, rotation_rms, half_variances = _attitude_covariance(
+        data, axes, moments, omega, ratio, halves, half_scales
+    )
+    cov_attitude = cov_attitude * _split_inflation(half_ratios, half_variances)
     centre, cov_centre, centre_rms = fit_centre(times, rotations, translations, used, references, shared_rounds)
     covariance = jax.scipy.linalg.block_diag(cov_attitude, cov_centre)
     excitation = _excitation(_integrate(axes, moments, omega, times, orbit)[1], used)

@@ -351,6 +351,38 @@ class Track(eqx.Module):
     whose ambiguous or weak estimate motion continuity resolved; they count as registered
     (`registered`)."""
 
+    @classmethod
+    def of_measurements(
+        cls,
+        rotations: Float[Array, "T 3 3"],
+        points: Float[Array, "T 3"],
+        keyframes: Int[Array, " T"],
+        measurement_cov: Float[Array, "T 6 6"],
+        status: Int[Array, " T"] | None = None,
+    ) -> Track:
+        """A track of measurements alone, made elsewhere (a saved run, another tracker, exact
+        motions): what [`jaxpose.identify`][] and [`jaxpose.track_against_model`][] read.
+        No filter ran, so `filter_status` is `FILTER_NO_ESTIMATE` on every frame, the filtered
+        attitude and position are the measurements themselves and the rates are zero.
+        `status` defaults to success on every frame. Frames, units: as the fields."""
+        T = rotations.shape[0]
+        zeros = jnp.zeros((T, 3), rotations.dtype)
+        status = jnp.full(T, SUCCESS, jnp.int32) if status is None else jnp.asarray(status, jnp.int32)
+        return cls(
+            rotations=rotations,
+            points=points,
+            status=status,
+            attitude=rotations,
+            rate=zeros,
+            spin_accel=zeros,
+            position=points,
+            velocity=zeros,
+            rate_std=zeros,
+            filter_status=jnp.full(T, FILTER_NO_ESTIMATE, jnp.int32),
+            keyframes=jnp.asarray(keyframes, jnp.int32),
+            measurement_cov=measurement_cov,
+        )
+
     def motions(self) -> tuple[Float[Array, "T 3"], Bool[Array, " T"]]:
         """The translations t_k of the motions x ↦ `rotations`[k] x + t_k from the first frame
         to frame k (frame c, metres), t_k = `points`[k] − `rotations`[k] `points`[0], and
