@@ -719,11 +719,14 @@ def _identify_motion(
         fit_data = (times, rotations, mask, references, whiten, base_axes, base_moments, orbit)
         start = jnp.where(first, jnp.concatenate([jnp.zeros(5, times.dtype), omega_s[k]]), theta)
         sol = solve(start, fit_data, ratio)
-        new_cost = jnp.sum(_rotation_residuals(sol.value, data) ** 2)
+        residuals = _rotation_residuals(sol.value, data)
+        new_cost = jnp.sum(residuals**2)
         new_cost = jnp.where(jnp.isfinite(new_cost), new_cost, jnp.inf)
         new = (sol.value, base_axes, base_moments, new_cost, sol.result, ratio)
         keep_new = ~half & (~first | (new_cost < cost))
-        return tree_select(keep_new, new, carry), sol.value
+        # A half round's residual variance over its own frames (`_split_inflation`).
+        scale = _residual_variance(decorrelated(residuals, mask, references, ratio), mask, references)
+        return tree_select(keep_new, new, carry), (sol.value, scale)
 
     initial = (
         jnp.concatenate([jnp.zeros(5, times.dtype), omega_s[0]]),
@@ -733,23 +736,16 @@ def _identify_motion(
         optx.RESULTS.successful,
         jnp.zeros((), times.dtype),
     )
-    (theta, axes0, moments0, _, result, ratio), fits = jax.lax.scan(one_fit, initial, jnp.arange(n_rounds + 2))
+    (theta, axes0, moments0, _, result, ratio), (fits, scales) = jax.lax.scan(
+        one_fit, initial, jnp.arange(n_rounds + 2)
+    )
     data = (times, rotations, used, references, whiten, axes0, moments0, orbit)
     axes = jaxlie.SO3.exp(theta[:3]).as_matrix() @ axes0
     axes, moments = _sorted(axes, _moments(moments0, theta[3:5]))
     omega = theta[5:8]
     half_ratios = jax.vmap(lambda value: _sorted_ratios(moments0, value[3:5]))(fits[-2:])
-    half_scales = jax.vmap(
-        lambda value, mask: _residual_variance(
-            _decorrelated_residuals(
-                value, ((times, rotations, mask, references, whiten, axes0, moments0, orbit), ratio)
-            ),
-            mask,
-            references,
-        )
-    )(fits[-2:], halves)
     cov_attitude, rotation_rms, half_variances = _attitude_covariance(
-        data, axes, moments, omega, ratio, halves, half_scales
+        data, axes, moments, omega, ratio, halves, scales[-2:]
     )
     cov_attitude = cov_attitude * _split_inflation(half_ratios, half_variances)
     centre, cov_centre, centre_rms = fit_centre(times, rotations, translations, used, references, shared_rounds)
