@@ -11,9 +11,11 @@ prior, this stage replaces it (DECISIONS.md is silent on capture; the choices ar
 2. **Scores** of all candidates in batches on the coarse problem (`score_batch`); the best
    `RotationSearch.modes` distinct ones (`distinct_best`) are refined on the coarse problem
    (the configured refine, soft objective).
-3. **Hypotheses**: the best `RotationSearch.hypotheses` distinct refined modes are fitted to
-   the surface by two fine-stage passes on `RotationSearch.points` current points (a wide
-   inlier gate that pulls the translation in, then the configured gate).
+3. **Hypotheses**: the best `RotationSearch.hypotheses` distinct refined modes, and rest (no
+   motion, where a local registration starts: a small turn lies in its basin even where the
+   grid's best modes lead elsewhere), are fitted to the surface by two fine-stage passes on
+   `RotationSearch.points` current points (a wide inlier gate that pulls the translation in,
+   then the configured gate).
 4. **Half-turn twins** (`symmetric_candidates`): the best fitted hypothesis preceded by a half
    turn about each axis of the previous surface's normal tensor (`half_turns`), fitted the
    same way. The grid's scores favour the motion with the most shared surface, so the other
@@ -73,7 +75,8 @@ class CaptureResult(eqx.Module):
     """The capture stage's outcome (frame n, radians and metres).
 
     - `params`: `(k, 6)` the hypotheses' p, best first (fitted on `RotationSearch.points`):
-      k = `RotationSearch.hypotheses` fitted modes and the three half-turn twins.
+      k = `RotationSearch.hypotheses` fitted modes, the fit from rest and the three half-turn
+      twins.
     - `score`: `(k,)` their support (0–1, module docstring); −1 for a slot that repeats a
       better one.
     - `consistency`: `(k,)` their `consistency` (0–1); −1 for a repeat.
@@ -81,8 +84,8 @@ class CaptureResult(eqx.Module):
       `RotationSearch.separation_deg` of a better one: under range noise, fits from nearby
       modes land a degree or two apart and are one answer).
     - `grid_best`, `grid_score`: the best candidate of the grid and its coarse objective.
-    - `refined`: `(k, 6)` where each hypothesis's fit started: the coarse refine's result, or
-      the twin's candidate.
+    - `refined`: `(k, 6)` where each hypothesis's fit started: the coarse refine's result,
+      rest (zeros), or the twin's candidate.
     - `evaluations`: objective evaluations of the grid.
     """
 
@@ -284,8 +287,9 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
     refined_G = jax.vmap(lambda p: rotation(*p[:3]))(refined)
     top, filled = distinct_best(refined_scores, refined_G, so3.hypotheses, math.radians(so3.separation_deg), so3.modes)
     fit = _hypothesis_fit(problem, config, prev, curr, curr_grid)
-    params, score, agree = fit(refined[top])
-    score = jnp.where(filled, score, -1.0)
+    starts = jnp.concatenate([refined[top], jnp.zeros((1, 6), refined.dtype)])  # the modes, then rest
+    params, score, agree = fit(starts)
+    score = jnp.where(jnp.concatenate([filled, jnp.ones(1, bool)]), score, -1.0)
     twins = symmetric_candidates(params[jnp.argmax(score)], prev)
     twin_params, twin_score, twin_agree = fit(twins)
     params, score, distinct, (agree, starts) = rank_distinct(
@@ -293,7 +297,7 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
         jnp.concatenate([score, twin_score]),
         math.radians(so3.separation_deg) / 2,
         jnp.concatenate([agree, twin_agree]),
-        jnp.concatenate([refined[top], twins]),
+        jnp.concatenate([starts, twins]),
     )
     best = jnp.argmax(scores)
     return CaptureResult(

@@ -174,8 +174,9 @@ class RotationSearch(eqx.Module):
       of the two clouds' principal frames are added to it.
     - `objective`: "hard" or "soft", what scores the grid on the coarse problem (static).
     - `modes`: distinct best candidates refined on the coarse problem (static).
-    - `hypotheses`: distinct refined modes fitted to the surface (static); with the three
-      half-turn twins of the best they make the slots of `Estimate.hypotheses`.
+    - `hypotheses`: distinct refined modes fitted to the surface (static); with a fit from
+      rest and the three half-turn twins of the best they make the slots of
+      `Estimate.hypotheses`.
     - `separation_deg`: rotations closer than this (degrees) are one mode, among the grid's
       candidates and among the refined modes that become hypotheses; fitted hypotheses closer
       than half of it are one answer (static).
@@ -625,8 +626,8 @@ class Config(eqx.Module):
         """Capture at any rotation, for a first estimate with no prior: the global stage over the
         whole rotation group ([`RotationSearch`][jaxpose.RotationSearch], 8192 super-Fibonacci
         rotations and the principal-frame alignments scored on the coarse problem, 16 modes
-        refined, 6 hypotheses fitted to the surface), then the default fine stage from the
-        best hypothesis. `Estimate.hypotheses` holds the distinct hypotheses, best first;
+        refined, 6 hypotheses and a start from rest fitted to the surface), then the default
+        fine stage from the best hypothesis. `Estimate.hypotheses` holds the distinct hypotheses, best first;
         `Estimate.ambiguous` says that another one explains the clouds as well (a symmetric
         target). Up to 30 BFGS steps per mode. The fine stage keeps `planar_fraction` 0.7
         and planes through the centroids (`anchor` "centroid"), as when the capture benchmark

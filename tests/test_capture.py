@@ -154,10 +154,20 @@ def large_turn(fragment_turns):
 
 
 @pytest.fixture(scope="module")
-def capture_config(n5_turn, large_turn):
-    """`Config.capture()` sized once for both capture pairs of this module, so that they share
+def small_turn():
+    """The capture benchmark's noise-free fragment pair turned 9.4° (seed 0, the third of the
+    0–30° bin), drawn alone. In the benchmark's float32 run, before the fit from rest, the
+    capture stage ended 135° off on it."""
+    cases, _ = benchmark.make_cases(3, levels=(0.0,), keep=lambda name, _, bin_: name == "fragment" and bin_[0] == 0)
+    return cases[2]
+
+
+@pytest.fixture(scope="module")
+def capture_config(n5_turn, large_turn, small_turn):
+    """`Config.capture()` sized once for the capture pairs of this module, so that they share
     one compiled program (each pair sized on its own compiles one of ≈ 30 s)."""
-    return sized_batch_config([(c.prev, c.curr) for c in (n5_turn, large_turn)], jp.Config.capture())
+    pairs = [(c.prev, c.curr) for c in (n5_turn, large_turn, small_turn)]
+    return sized_batch_config(pairs, jp.Config.capture())
 
 
 def test_capture_reports_every_equivalent_motion_of_n5_and_flags_it(n5_turn, capture_config):
@@ -201,7 +211,7 @@ def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn, capture_conf
     errors = realistic.errors(large_turn, est.rotation, est.translation)
     assert errors["rotation_error_deg"] < 0.1 and errors["centroid_error_cm"] < 1.0, errors
     H = est.hypotheses
-    k = jp.RotationSearch().hypotheses + 3  # the fitted modes and the three half-turn twins
+    k = jp.RotationSearch().hypotheses + 4  # the fitted modes, the fit from rest and three half-turn twins
     assert H.rotation.shape == (k, 3, 3) and H.translation.shape == (k, 3) and H.score.shape == (k,)
     np.testing.assert_allclose(np.asarray(H.rotation[0]), np.asarray(est.rotation), atol=1e-12)
     np.testing.assert_allclose(np.asarray(H.translation[0]), np.asarray(est.translation), atol=1e-12)
@@ -215,6 +225,15 @@ def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn, capture_conf
     for i in range(len(Rd)):
         for j in range(i):
             assert math.degrees(float(jp.rotation_angle(Rd[i], Rd[j]))) > jp.RotationSearch().separation_deg / 2
+
+
+def test_capture_finds_a_small_turn(small_turn, capture_config):
+    """A small turn is found by the capture stage: besides the grid's modes, one hypothesis is
+    fitted from rest (no motion), where a local registration starts (the hypotheses' count,
+    with its slot, is checked with the large turn above)."""
+    assert small_turn.motion_deg < 15
+    est = jp.estimate(small_turn.prev, small_turn.curr, capture_config, key=jax.random.key(0))
+    assert realistic.errors(small_turn, est.rotation, est.translation)["found"]
 
 
 @pytest.mark.slow  # a compile of the default program of its own (≈ 30 s on the 2-core CPU)

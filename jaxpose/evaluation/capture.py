@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import statistics
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -81,9 +82,17 @@ def shared_fraction(prev: Cloud, curr: Cloud, R, t, tol: float = 0.02) -> float:
     return float(np.mean(distance < tol))
 
 
-def make_cases(pairs: int = 3, seed: int = 0, names=("n5", "satellite", "fragment"), levels=LEVELS_CM):
+def make_cases(
+    pairs: int = 3,
+    seed: int = 0,
+    names=("n5", "satellite", "fragment"),
+    levels=LEVELS_CM,
+    keep: Callable[[str, float, tuple[float, float]], bool] | None = None,
+):
     """`pairs` pairs per target, noise level and bin (module docstring), and the number of
-    draws rejected for too little shared surface."""
+    draws rejected for too little shared surface. `keep(target, sigma_cm, bin)`: only those
+    groups are drawn; each group draws from its own seeds (`seed`, target, level, bin, draw),
+    so a kept pair is the same as in the whole set (its `index` counts the kept pairs only)."""
     sim = eqx.filter_jit(simulate)
     cases, rejected = [], 0
     for ti, name in enumerate(names):
@@ -91,6 +100,8 @@ def make_cases(pairs: int = 3, seed: int = 0, names=("n5", "satellite", "fragmen
         near = nearest_distance(target)
         for li, sigma in enumerate(levels):
             for bi, (lo, hi) in enumerate(BINS):
+                if keep is not None and not keep(name, sigma, (lo, hi)):
+                    continue
                 kept, draw = 0, 0
                 while kept < pairs:
                     rng = np.random.default_rng([seed, ti, li, bi, draw])
