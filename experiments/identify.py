@@ -23,7 +23,7 @@ A fifth case spins N5 about a principal axis: `observable` must be False.
 
 The tracks (each frame's chained motion, keyframe, registration flag and covariance) and the
 true motions go to `results/identify_tracks.npz`, so that `identify` can be studied again
-without tracking (`uv run python experiments/identify.py refit`).
+without tracking (`uv run python experiments/identify.py refit` → `results/identify_refit.{json,md}`).
 """
 
 from __future__ import annotations
@@ -177,8 +177,9 @@ def markdown(rows: list[dict], duration: float, rate_hz: float, horizon: float) 
 
 def refit(**options) -> list[dict]:
     """`identify` again on the tracks saved by the last run (`results/identify_tracks.npz`),
-    with `identify_tracked`'s `options`: the ratios' relative errors (%), the axes' errors (°)
-    and the centre's error (cm) per case."""
+    with `identify_tracked`'s `options`: the ratios' relative errors (%), the axes' errors (°),
+    the centre's error (cm) and, per camera axis, the centre's error and standard deviation
+    (cm) and their ratio (z) per case → `results/identify_refit.{json,md}`."""
     saved = np.load(RESULTS / "identify_tracks.npz")
     rows = []
     for case in CASES:
@@ -197,16 +198,38 @@ def refit(**options) -> list[dict]:
         )
         axes = get("true_axes")
         cosines = np.abs(np.sum(np.asarray(dyn.principal_axes) * axes, axis=0))
+        centre_error = 100 * (np.asarray(dyn.centre) - get("true_centre"))
+        centre_std = 100 * np.sqrt(np.diag(np.asarray(dyn.covariance))[8:11])
         rows.append(
             {
                 "case": case,
-                "ratio_error_pct": (100 * (np.asarray(dyn.inertia_ratios) / get("true_ratios") - 1)).round(2).tolist(),
-                "axis_error_deg": np.degrees(np.arccos(np.clip(cosines, -1, 1))).round(2).tolist(),
+                "ratio_error_pct": (100 * (np.asarray(dyn.inertia_ratios) / get("true_ratios") - 1))
+                .astype(float)
+                .round(2)
+                .tolist(),
+                "axis_error_deg": np.degrees(np.arccos(np.clip(cosines, -1, 1))).astype(float).round(2).tolist(),
                 "centre_error_cm": round(100 * float(np.linalg.norm(np.asarray(dyn.centre) - get("true_centre"))), 2),
+                "centre_axis_error_cm": centre_error.astype(float).round(2).tolist(),
+                "centre_std_cm": centre_std.astype(float).round(2).tolist(),
+                "centre_z": (np.abs(centre_error) / centre_std).astype(float).round(1).tolist(),
                 "observable": bool(dyn.observable),
             }
         )
         print(rows[-1], flush=True)
+    head = (
+        "`identify` on the tracks of `results/identify_tracks.npz` (`identify.py refit`). Centre of mass per camera "
+        "axis: error / standard deviation, cm, and |error| / std.\n\n"
+        "| case | ratio errors % | axis errors ° | centre cm | centre error, cm | centre std, cm | z | observable |\n"
+        "|---|---|---|---|---|---|---|---|\n"
+    )
+    fmt = lambda values: ", ".join(f"{v:g}" for v in values)  # noqa: E731
+    lines = [
+        f"| {r['case']} | {fmt(r['ratio_error_pct'])} | {fmt(r['axis_error_deg'])} | {r['centre_error_cm']:g} | "
+        f"{fmt(r['centre_axis_error_cm'])} | {fmt(r['centre_std_cm'])} | {fmt(r['centre_z'])} | {r['observable']} |"
+        for r in rows
+    ]
+    (RESULTS / "identify_refit.md").write_text(head + "\n".join(lines) + "\n")
+    write_json("identify_refit.json", {"rows": rows})
     return rows
 
 

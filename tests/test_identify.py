@@ -216,3 +216,20 @@ def test_a_slowly_varying_error_is_covered_by_the_standard_deviations():
     std = np.sqrt(np.diag(np.asarray(d.covariance)))[3:5]
     error = np.abs(np.asarray(d.inertia_ratios - moments[:2]))
     assert np.all(error < 3 * std), (error, std, bool(d.observable))
+
+
+def test_a_slowly_varying_translation_error_is_covered_by_the_centres_standard_deviations():
+    """Every frame measured from the first with a translation error that wanders over tens of
+    seconds, 1 cm at most, beside 1 mm of white noise: the centre of mass's standard
+    deviations cover its error (the split check, `_split_inflation`)."""
+    target = tumble(0)
+    times, R, t, _, (_, _, centre, _) = measurements(target)
+    phases = jnp.array([0.5, 2.1, 1.1])
+    periods = jnp.array([19.0, 27.0, 23.0])
+    slow = 0.01 * jnp.sin(2 * jnp.pi * times[:, None] / periods[None] + phases[None])
+    white = jax.random.normal(jax.random.key(5), (times.shape[0], 3)) * 1e-3
+    references = jnp.zeros(times.shape[0], jnp.int32)
+    d = identify_motion(times, R, t + slow + white, jnp.ones(times.shape[0], bool), references, None, 5)
+    std = np.sqrt(np.diag(np.asarray(d.covariance)))[8:11]
+    error = np.abs(np.asarray(d.centre - centre))
+    assert np.all(error < 3 * std), (error, std)

@@ -52,7 +52,9 @@ against a drifting body-frame model) looks like other dynamics, so the fit absor
 residual shows it. Two more rounds of the same least-squares program fit each half of the
 window alone, from the whole window's solution; where their ratios disagree by more than
 their own standard deviations allow (χ² of the difference, `_split_inflation`), the
-attitude covariance is multiplied by that χ². Consistent halves leave it as it is.
+attitude covariance is multiplied by that χ². The centre's linear fit is solved on each half
+alone too, and its covariance multiplied by the χ² of the halves' (c, v). Consistent halves
+leave them as they are; a bias that both halves share passes the check.
 A spin about a principal axis leaves the ratios unobservable: the body rate's direction does
 not move. `observable` is False when the fitted body rate's direction
 stays within `MIN_EXCITATION` of its mean, when a ratio's standard deviation exceeds `MAX_RATIO_REL_STD`
@@ -473,16 +475,18 @@ def _ratio_variances(jac: Float[Array, "R 8"], mask: Bool[Array, " T"]) -> Float
     return jnp.diag(_inverse_information((jac * rows[:, None]).T @ jac))[3:5]
 
 
-def _split_inflation(ratios: Float[Array, "2 2"], variances: Float[Array, "2 2"]) -> Float[Array, ""]:
-    """The factor (≥ 1) on the whole window's attitude covariance: how much more the two half
-    windows' ratios disagree than their own covariances allow, max over the two ratios of
-    (r_a − r_b)² / (σ_a² + σ_b²).
+def _split_inflation(estimates: Float[Array, "2 n"], variances: Float[Array, "2 n"]) -> Float[Array, ""]:
+    """The factor (≥ 1) on the whole window's covariance of a block (the attitude's, from the
+    ratios; the centre's, from (c, v)): how much more the two half windows' estimates
+    disagree than their own variances allow, max over the estimates of
+    (x_a − x_b)² / (σ_a² + σ_b²).
 
     Why: an error that wanders slowly (a track against a drifting body-frame model) looks like
     other dynamics, so the fit absorbs it and no residual shows it; each half, pulled by its
     own part of the error, lands elsewhere. Exact or independent measurements leave the factor
     about 1. A half whose fit or covariance is not finite leaves it at 1."""
-    chi2 = (ratios[0] - ratios[1]) ** 2 / jnp.maximum(variances[0] + variances[1], jnp.finfo(ratios.dtype).tiny)
+    tiny = jnp.finfo(estimates.dtype).tiny
+    chi2 = (estimates[0] - estimates[1]) ** 2 / jnp.maximum(variances[0] + variances[1], tiny)
     factor = jnp.max(jnp.where(jnp.isfinite(chi2), chi2, 1.0))
     return jnp.maximum(factor, 1.0)
 
@@ -508,34 +512,43 @@ def fit_centre(
 ) -> tuple[Float[Array, "6"], Float[Array, "6 6"], Float[Array, ""]]:
     """(c, v) by least squares over the measured motions keyframe j → k (step 3): the centre
     moves from c + t_j v to c + t_k v, so t_jk = (I − R_jk) c + (t_k I − t_j R_jk) v. Also its
-    covariance σ̂² (AᵀA)⁻¹ times the residuals' `_design_effect`, and their RMS (m).
+    covariance σ̂² (AᵀA)⁻¹ times the residuals' `_design_effect` and the split check's factor
+    (each half of the window solved alone, `_split_inflation`), and the residuals' RMS (m).
     After a first solve, `shared_rounds` solves on rows decorrelated for the keyframes'
     shared error (`shared_variance_ratio` of the last residuals, `decorrelated`), as in the
-    rotation fit."""
+    rotation fit; the halves use the last ratio."""
     eye = jnp.eye(3, dtype=rotations.dtype)
     R_rel = jnp.einsum("tij,tkj->tik", rotations, rotations[references])
     t_rel = translations - jnp.einsum("tij,tj->ti", R_rel, translations[references])
     t_ref = times[references]
     A = jnp.concatenate([eye[None] - R_rel, times[:, None, None] * eye[None] - t_ref[:, None, None] * R_rel], axis=2)
-    w = used.astype(A.dtype)[:, None, None]
-    A, b = A * w, t_rel * w[:, :, 0]
 
-    def solve(ratio):
-        """Least squares on the rows decorrelated for the keyframes' shared error ρ."""
-        A_d = jax.vmap(lambda col: decorrelated(col, used, references, ratio), in_axes=2, out_axes=2)(A)
-        A_d, b_d = A_d.reshape(-1, 6), decorrelated(b, used, references, ratio).reshape(-1)
+    def solve(ratio, mask):
+        """Least squares on the rows of the frames in `mask`, decorrelated for the keyframes'
+        shared error ρ; the solution, its covariance and the raw residuals of every used frame."""
+        w = mask.astype(A.dtype)[:, None, None]
+        A_m, b_m = A * w, t_rel * w[:, :, 0]
+        A_d = jax.vmap(lambda col: decorrelated(col, mask, references, ratio), in_axes=2, out_axes=2)(A_m)
+        A_d, b_d = A_d.reshape(-1, 6), decorrelated(b_m, mask, references, ratio).reshape(-1)
         x = jnp.linalg.lstsq(A_d, b_d)[0]
-        return x, A_d, A_d @ x - b_d
+        r = A_d @ x - b_d
+        n = 3 * jnp.sum(mask)
+        variance = jnp.sum(r**2) / jnp.maximum(n - 6, 1) * _design_effect(r.reshape(-1, 3), mask, references)
+        raw = (A.reshape(-1, 6) @ x - t_rel.reshape(-1)).reshape(-1, 3) * used[:, None]
+        return x, variance * _inverse_information(A_d.T @ A_d), raw
 
-    x, A_d, r = solve(jnp.zeros((), A.dtype))
+    ratio = jnp.zeros((), A.dtype)
+    x, cov, raw = solve(ratio, used)
     for _ in range(shared_rounds):
-        x, A_d, r = solve(
-            shared_variance_ratio((A.reshape(-1, 6) @ x - b.reshape(-1)).reshape(-1, 3), used, references)
-        )
+        ratio = shared_variance_ratio(raw, used, references)
+        x, cov, raw = solve(ratio, used)
+    later = times >= (times[0] + times[-1]) / 2
+    halves = [solve(ratio, used & ~later), solve(ratio, used & later)]
+    half_x = jnp.stack([h[0] for h in halves])
+    half_var = jnp.stack([jnp.diag(h[1]) for h in halves])
+    cov = cov * _split_inflation(half_x, half_var)
     n = 3 * jnp.sum(used)
-    variance = jnp.sum(r**2) / jnp.maximum(n - 6, 1) * _design_effect(r.reshape(-1, 3), used, references)
-    raw = A.reshape(-1, 6) @ x - b.reshape(-1)
-    return x, variance * _inverse_information(A_d.T @ A_d), jnp.sqrt(jnp.sum(raw**2) / jnp.maximum(n, 1))
+    return x, cov, jnp.sqrt(jnp.sum(raw**2) / jnp.maximum(n, 1))
 
 
 def _whitening(rotation_cov: Float[Array, "T 3 3"], used: Bool[Array, " T"]) -> Float[Array, "T 3 3"]:
