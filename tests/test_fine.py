@@ -162,6 +162,7 @@ def _height_above_ridge(pts: np.ndarray) -> np.ndarray:
     return np.where(x < 0, z, (z - 0.3 * x) / np.sqrt(1 + 0.3**2))
 
 
+@pytest.mark.slow  # an option off by default
 def test_the_current_side_keeps_a_noise_free_surface_and_smooths_a_noisy_one():
     config = jp.Config(fine=jp.FineStage(points=4096, smooth_current=True))
     sides = {}
@@ -187,6 +188,7 @@ def test_the_current_side_keeps_a_noise_free_surface_and_smooths_a_noisy_one():
     assert along < 0.25 * across, (along, across)
 
 
+@pytest.mark.slow  # an option off by default
 def test_a_smoothed_current_side_needs_the_whole_surface():
     with pytest.raises(ValueError, match="curr_slab = inf"):
         jp.FineStage(curr_slab=2.0, smooth_current=True)
@@ -274,7 +276,10 @@ def test_a_noisy_pair_converges_to_its_noise_floor(camera):
     assert np.degrees(err[:3]).max() < 0.5 and 100 * err[3:].max() < 0.5, err
 
 
-@pytest.mark.parametrize("target, sigma", [("n5", 0.0), ("satellite", 1.0)])
+@pytest.mark.parametrize(
+    "target, sigma",
+    [("n5", 0.0), pytest.param("satellite", 1.0, marks=pytest.mark.slow)],  # noisy case: -m slow (23 s)
+)
 def test_graph_matching_rounds_give_the_voxel_search_fit(monkeypatch, target, sigma):
     """A fit whose rounds match by graph descent where the points moved little (`GRAPH_SHIFT`)
     ends where a fit whose every round searches the voxels ends (`GRAPH_SHIFT` = 0: only a
@@ -324,6 +329,7 @@ def test_graph_matching_rounds_give_the_voxel_search_fit(monkeypatch, target, si
     assert np.degrees(to_truth[:3]).max() < bound_deg and to_truth[3:].max() < 0.005, to_truth
 
 
+@pytest.mark.slow  # the solver's equivalence with QR, measured when it was chosen
 def test_the_normal_equations_solver_gives_the_qr_result(monkeypatch):
     """The fine stage solves each round by Gauss–Newton with Cholesky on JᵀJ
     (`least_squares_solver`) for speed; on a noisy whole-surface pair it must land where

@@ -122,6 +122,7 @@ def test_identify_checks_its_input():
         jp.identify(short, 0.1)
 
 
+@pytest.mark.slow  # a second compile of the whole fit; `_identify_motion` is itself jitted
 def test_identify_runs_under_jit():
     target = tumble(2)
     times, R, t, references, (_, moments, _, _) = measurements(target)
