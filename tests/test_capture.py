@@ -157,7 +157,7 @@ def large_turn(fragment_turns):
 def small_turn():
     """The capture benchmark's noise-free fragment pair turned 9.4° (seed 0, the third of the
     0–30° bin), drawn alone. In the benchmark's float32 run, before the fit from rest, the
-    capture stage ended 135° off on it."""
+    capture stage ended 130° off on it."""
     cases, _ = benchmark.make_cases(3, levels=(0.0,), keep=lambda name, _, bin_: name == "fragment" and bin_[0] == 0)
     return cases[2]
 
