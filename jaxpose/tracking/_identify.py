@@ -461,12 +461,20 @@ def _sorted_ratios(base_moments: Float[Array, "3"], log_factors: Float[Array, "2
     return moments[:2] / moments[2]
 
 
-def _residual_variance(residuals: Float[Array, "T 3"], used: Bool[Array, " T"], references) -> Float[Array, ""]:
+def _residual_variance(
+    residuals: Float[Array, "T 3"], used: Bool[Array, " T"], references, fitted: int = 8
+) -> Float[Array, ""]:
     """σ̂² of a fit's whitened, decorrelated residuals over its `used` frames, times their
-    `_design_effect` (8 parameters fitted)."""
+    `_design_effect`, for `fitted` parameters (8 for the attitude fit, 6 for the centre's)."""
     n = 3 * jnp.sum(used)
     r = residuals * used[:, None]
-    return jnp.sum(r**2) / jnp.maximum(n - 8, 1) * _design_effect(r, used, references)
+    return jnp.sum(r**2) / jnp.maximum(n - fitted, 1) * _design_effect(r, used, references)
+
+
+def _window_halves(times: Float[Array, " T"], used: Bool[Array, " T"]) -> Bool[Array, "2 T"]:
+    """The used frames of the window's first and second halves in time (the split check)."""
+    later = times >= (times[0] + times[-1]) / 2
+    return jnp.stack([used & ~later, used & later])
 
 
 def _ratio_variances(jac: Float[Array, "R 8"], mask: Bool[Array, " T"]) -> Float[Array, "2"]:
@@ -531,9 +539,7 @@ def fit_centre(
         A_d = jax.vmap(lambda col: decorrelated(col, mask, references, ratio), in_axes=2, out_axes=2)(A_m)
         A_d, b_d = A_d.reshape(-1, 6), decorrelated(b_m, mask, references, ratio).reshape(-1)
         x = jnp.linalg.lstsq(A_d, b_d)[0]
-        r = A_d @ x - b_d
-        n = 3 * jnp.sum(mask)
-        variance = jnp.sum(r**2) / jnp.maximum(n - 6, 1) * _design_effect(r.reshape(-1, 3), mask, references)
+        variance = _residual_variance((A_d @ x - b_d).reshape(-1, 3), mask, references, fitted=6)
         raw = (A.reshape(-1, 6) @ x - t_rel.reshape(-1)).reshape(-1, 3) * used[:, None]
         return x, variance * _inverse_information(A_d.T @ A_d), raw
 
@@ -542,8 +548,7 @@ def fit_centre(
     for _ in range(shared_rounds):
         ratio = shared_variance_ratio(raw, used, references)
         x, cov, raw = solve(ratio, used)
-    later = times >= (times[0] + times[-1]) / 2
-    halves = [solve(ratio, used & ~later), solve(ratio, used & later)]
+    halves = [solve(ratio, mask) for mask in _window_halves(times, used)]
     half_x = jnp.stack([h[0] for h in halves])
     half_var = jnp.stack([jnp.diag(h[1]) for h in halves])
     cov = cov * _split_inflation(half_x, half_var)
@@ -703,8 +708,7 @@ def _identify_motion(
     axes_s, moments_s, omega_s = (jnp.stack(part) for part in zip(*starts, strict=True))
     n_starts = len(starts)
 
-    later = times >= (times[0] + times[-1]) / 2
-    halves = jnp.stack([used & ~later, used & later])
+    halves = _window_halves(times, used)
     n_rounds = n_starts + shared_rounds
 
     def one_fit(carry, index):
