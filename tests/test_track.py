@@ -31,6 +31,7 @@ from jaxpose.tracking._track import (
     motion_reached,
     nearest_semidefinite,
     predicted_motion,
+    prediction_spread,
     track,
 )
 
@@ -377,6 +378,33 @@ def test_continuity_chooses_the_hypothesis_nearest_the_prediction(predicted_deg,
     assert int(j) == chosen and bool(ok) == resolved
 
 
+@pytest.mark.parametrize(
+    ("predicted_deg", "spread_deg", "resolved"),
+    [
+        (1.5, 0.6, True),  # within 3 standard deviations of the extrapolation error
+        (1.5, 0.4, False),  # … and not beyond
+        (0.9, 0.1, True),  # the 1° gate is the narrowest
+        (2.9, 1.0, True),
+        (3.5, 5.0, False),  # never beyond WEAK_MAX_DEG
+    ],
+)
+def test_a_weak_estimate_is_accepted_within_the_extrapolation_error(predicted_deg, spread_deg, resolved):
+    hypotheses = _hypotheses_at([0.0, 3.0], [True, True])
+    R_pred = jaxlie.SO3.from_z_radians(math.radians(predicted_deg)).as_matrix()
+    _, ok = continuity_choice(hypotheses, jnp.asarray(LOW_SCORE), R_pred, jp.Config(), math.radians(spread_deg))
+    assert bool(ok) == resolved
+
+
+def test_the_prediction_spread_grows_with_the_frames_ahead_over_the_baseline():
+    """σ √(2a (1 + a)), a = (k − last) / (last − base): one frame ahead of a one-frame
+    baseline 2σ, four ahead √40 σ, one ahead of a hundred-frame baseline ≈ 0.14σ; nothing
+    registered since frame 0: 0."""
+    assert float(prediction_spread(1.0, 2, 1, 0)) == pytest.approx(2.0)
+    assert float(prediction_spread(1.0, 5, 1, 0)) == pytest.approx(math.sqrt(40))
+    assert float(prediction_spread(1.0, 101, 100, 0)) == pytest.approx(math.sqrt(2 * 0.01 * 1.01))
+    assert float(prediction_spread(0.5, 7, 0, 0)) == 0.0
+
+
 def test_an_update_whose_covariance_is_not_semidefinite_is_refused():
     """A filter whose updated covariance came out with a negative variance (float32
     round-off) keeps its prediction, flagged as a bad update, so no standard deviation is NaN."""
@@ -475,3 +503,23 @@ def test_the_noise_free_tumble_whose_covariance_lost_definiteness_stays_finite()
     assert result.rate_std.dtype == jnp.float32
     assert _all_finite(result)
     assert np.mean(np.asarray(result.filter_status) == FILTER_UPDATED) >= 0.95
+
+
+@pytest.mark.slow
+def test_a_track_whose_registrations_are_all_weak_keeps_registering():
+    """The tracking benchmark's tumble 19 (`experiments/tracking_benchmark.py`): the fragment
+    at 2 cm of range noise, 6 m from a camera fixed in the orbital frame, 25 Hz, the first
+    3 s. Its registrations are all weak (low score). With the 1° continuity gate alone, one
+    accepted frame set a constant-rate prediction that refused every later one (2 of 251
+    frames registered over 10 s); the extrapolation gate (`prediction_spread`) keeps it. In
+    float32, as the benchmark runs."""
+    with jax.enable_x64(False):
+        key = jax.random.key(1019)
+        tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=True)
+        camera = jp.Camera.camcube2(noise_sigma=0.02, noise_range_ref=5.0)
+        seq = simulate_sequence(camera, jp.targets.fragment(), tumble, 3.0, 25.0, key=jax.random.fold_in(key, 1))
+        result = track(seq.clouds, 0.04, key=jax.random.fold_in(key, 2))
+    registered = np.asarray(result.registered())
+    assert _all_finite(result)
+    attitude, _ = _tumble_errors(seq, result, 0.04)
+    assert registered.mean() > 0.5 and attitude < 2.0, (registered.sum(), attitude)

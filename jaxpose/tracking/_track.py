@@ -58,7 +58,7 @@ from .._programs import BoundedJit
 from .._rotations import rotation_angle
 from .._search import box_scale
 from .._tree import tree_finite, tree_select
-from .._uncertainty import COVARIANCE_SCALE, motion_covariance
+from .._uncertainty import COVARIANCE_SCALE, motion_covariance, rotation_std
 
 FILTER_UPDATED, FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE = 0, 1, 2, 3
 FILTER_STATUS_NAME = {
@@ -542,31 +542,74 @@ def is_registered(status: Int[Array, " T"], continuity: Bool[Array, " T"] | None
 
 WEAK_FRACTION = 1.0
 """A weak estimate (`Status.low_score`, `Status.not_converged` or `Status.uncertain`) is accepted by continuity when
-it lies within this fraction of `Thresholds.ambiguous_deg` of the predicted rotation. Under
-range noise the pattern score falls below `Thresholds.min_score` for estimates as good as the
-successes; refusing them all had left such tumbles without a single keyframe switch, so the
-motion from the keyframe grew until nothing registered. On the tracking benchmark the frames
-accepted this way erred as the successes did (Chibis-M at σ = 2 cm: 0.68° median against
-0.75°; `experiments/tracking_benchmark.py registrations`, docs, Tracking)."""
+it lies within this fraction of `Thresholds.ambiguous_deg` of the predicted rotation, or
+within the extrapolation gate (`WEAK_SIGMAS`), whichever is wider. Under range noise the
+pattern score falls below `Thresholds.min_score` for estimates as good as the successes;
+refusing them all had left such tumbles without a single keyframe switch, so the motion from
+the keyframe grew until nothing registered (docs, Tracking)."""
+
+WEAK_SIGMAS = 3.0
+"""The extrapolation gate of a weak estimate: this many standard deviations of the
+prediction's extrapolation error (`prediction_spread`), at most `WEAK_MAX_DEG`. A prediction
+extrapolated from a short baseline carries its registrations' error times the frames ahead
+over the baseline: with the fixed 1° gate alone, the first frame accepted at 2 cm of range
+noise set a prediction that refused every later one, and two of the tracking benchmark's
+tumbles (Chibis-M and the fragment at 2 cm) registered 2 of 251 frames (docs, Tracking)."""
+
+WEAK_MAX_DEG = 3.0
+"""The widest extrapolation gate, degrees (`WEAK_SIGMAS`): a registration that lands in a
+wrong minimum is usually several degrees off (a turn about a near-symmetry axis, a face laid
+onto another), and a gate this wide still refuses most of them."""
 
 
-def continuity_choice(hypotheses: Hypotheses, status: Int[Array, ""], R_pred: Float[Array, "3 3"], config: Config):
+def prediction_spread(
+    sigma: Float[ArrayLike, ""], k: Int[ArrayLike, ""], last_k: Int[ArrayLike, ""], base_k: Int[ArrayLike, ""]
+) -> Float[Array, ""]:
+    """The standard deviation (the unit of `sigma`) of the extrapolation error of the rotation
+    predicted for frame k at a constant rate from frames `base_k` and `last_k`
+    (`predicted_motion`), when each registration's rotation has the standard deviation
+    `sigma`. The prediction is last + a (last − base), a = (k − last_k) / (last_k − base_k),
+    so its error has the variance σ² ((1 + a)² + a²): σ² of the last registration, which the
+    fixed gate covers (`WEAK_FRACTION`), and σ² 2a (1 + a) from the extrapolation, whose
+    square root this returns. It vanishes for a long baseline (a → 0) and grows with the
+    frames ahead over the baseline. With nothing registered since frame 0 (`last_k` =
+    `base_k`) the prediction is rest, and it is 0.
+
+    Measured on the tracking benchmark's tumbles that differ: the whole σ √(1 + (1 + a)² + a²)
+    as the spread also let a noise-free fragment accept weak registrations 2–3° off against a
+    long baseline, which led the prediction astray until nothing registered (docs, Tracking)."""
+    sigma = jnp.asarray(sigma)
+    span = jnp.asarray(last_k - base_k)
+    a = jnp.where(span > 0, (k - last_k) / jnp.maximum(span, 1), 0.0).astype(sigma.dtype)
+    return sigma * jnp.sqrt(2 * a * (1 + a))
+
+
+def continuity_choice(
+    hypotheses: Hypotheses,
+    status: Int[Array, ""],
+    R_pred: Float[Array, "3 3"],
+    config: Config,
+    spread: Float[ArrayLike, ""] = 0.0,
+):
     """What motion continuity makes of an estimate (its `hypotheses` and `status`) given the
     predicted rotation `R_pred` (keyframe → now, camera frame). Returns (index, resolved):
 
     - ambiguous: the distinct hypothesis nearest the prediction, resolved when it lies within
       `CONTINUITY_FRACTION` × `Thresholds.ambiguous_deg` of it;
-    - weak (low score or not converged): the estimate itself (index 0), accepted when it lies
-      within `WEAK_FRACTION` × `Thresholds.ambiguous_deg` of the prediction;
+    - weak (low score, not converged or uncertain): the estimate itself (index 0), accepted
+      when it lies within `WEAK_FRACTION` × `Thresholds.ambiguous_deg` of the prediction, or
+      within `WEAK_SIGMAS` × `spread` (radians: the standard deviation of the prediction's
+      extrapolation error, `prediction_spread`), at most `WEAK_MAX_DEG`;
     - otherwise: index 0, not resolved (a success needs no continuity, a degenerate,
       non-finite or boxed-in estimate gets none)."""
     H = hypotheses
     angle = jnp.where(H.distinct, rotation_angle(H.rotation, jnp.broadcast_to(R_pred, H.rotation.shape)), jnp.inf)
     nearest = jnp.argmin(angle)
     gate = jnp.radians(config.thresholds.ambiguous_deg)
+    noise_gate = jnp.minimum(WEAK_SIGMAS * jnp.nan_to_num(jnp.asarray(spread)), jnp.radians(WEAK_MAX_DEG))
     ambiguous = (status == AMBIGUOUS) & (angle[nearest] <= CONTINUITY_FRACTION * gate)
     weak = ((status == LOW_SCORE) | (status == NOT_CONVERGED) | (status == UNCERTAIN)) & (
-        angle[0] <= WEAK_FRACTION * gate
+        angle[0] <= jnp.maximum(WEAK_FRACTION * gate, noise_gate)
     )
     return jnp.where(ambiguous, nearest, 0), ambiguous | weak
 
@@ -640,7 +683,9 @@ def chain_estimates(
 
     Motion continuity (`continuity_choice`, against the motion predicted at a constant rate)
     resolves an ambiguous estimate and accepts a weak one (low score, not converged, uncertain) that
-    agrees with the prediction; such frames count as registered (`Chain.continuity`).
+    agrees with the prediction to within 1°, or to within the prediction's extrapolation error
+    (`prediction_spread`, from the estimate's own covariance); such frames count as registered
+    (`Chain.continuity`).
 
     Pure and jittable (`lax.scan` over frames).
     """
@@ -658,7 +703,10 @@ def chain_estimates(
         if guided:  # static
             guess = displacement_from_motion(problem.frame.origin, problem.frame.axes, R_pred, t_pred)
         est = estimate_problem(problem, config, jax.random.fold_in(key, k), guess)
-        j, resolved = continuity_choice(est.hypotheses, est.status, R_pred, config)
+        spread = 0.0
+        if est.covariance is not None:  # static: a config with a fine stage
+            spread = prediction_spread(rotation_std(est.covariance), k, last_k, base_k)
+        j, resolved = continuity_choice(est.hypotheses, est.status, R_pred, config, spread)
         H = est.hypotheses
         R_rel, t_rel = (
             jnp.where(resolved, H.rotation[j], est.rotation),
