@@ -488,18 +488,26 @@ def test_a_slightly_indefinite_update_is_repaired_and_fused():
     assert np.all(np.isfinite(np.asarray(_row(kept)[-1])))
 
 
+def _benchmark_tumble_tracked(index, target, sigma, duration):
+    """Tumble `index` of `experiments/tracking_benchmark.py` (its `draw_tumble` and
+    `simulate_tumble`: key 1000 + index, 6 m, the camera orbital for odd indices, range noise
+    `sigma` m at 5 m) seen for `duration` s at 25 Hz and tracked with the default config, in
+    float32 as the benchmark runs. Returns (sequence, track)."""
+    with jax.enable_x64(False):
+        key = jax.random.key(1000 + index)
+        tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=bool(index % 2))
+        camera = jp.Camera.camcube2(noise_sigma=sigma, noise_range_ref=5.0)
+        seq = simulate_sequence(camera, target, tumble, duration, 25.0, key=jax.random.fold_in(key, 1))
+        return seq, track(seq.clouds, 0.04, key=jax.random.fold_in(key, 2))
+
+
 @pytest.mark.slow
 def test_the_noise_free_tumble_whose_covariance_lost_definiteness_stays_finite():
     """The tracking benchmark's tumble 20 (`experiments/tracking_benchmark.py`, second draw):
     N5, noise-free, inertial camera, 10 s at 25 Hz. Before round-off was repaired, 217 of its
     251 updates were refused and `rate_std` was NaN from frame 36 on. In float32, as the
     benchmark runs: the round-off is float32's."""
-    with jax.enable_x64(False):
-        key = jax.random.key(1020)
-        tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=False)
-        camera = jp.Camera.camcube2(noise_sigma=0.0, noise_range_ref=5.0)
-        seq = simulate_sequence(camera, jp.targets.n5(), tumble, 10.0, 25.0, key=jax.random.fold_in(key, 1))
-        result = track(seq.clouds, 0.04, key=jax.random.fold_in(key, 2))
+    _, result = _benchmark_tumble_tracked(20, jp.targets.n5(), 0.0, 10.0)
     assert result.rate_std.dtype == jnp.float32
     assert _all_finite(result)
     assert np.mean(np.asarray(result.filter_status) == FILTER_UPDATED) >= 0.95
@@ -513,12 +521,7 @@ def test_a_track_whose_registrations_are_all_weak_keeps_registering():
     accepted frame set a constant-rate prediction that refused every later one (2 of 251
     frames registered over 10 s); the extrapolation gate (`prediction_spread`) keeps it. In
     float32, as the benchmark runs."""
-    with jax.enable_x64(False):
-        key = jax.random.key(1019)
-        tumble = Tumble.random(jax.random.fold_in(key, 0), distance=6.0, orbital_camera=True)
-        camera = jp.Camera.camcube2(noise_sigma=0.02, noise_range_ref=5.0)
-        seq = simulate_sequence(camera, jp.targets.fragment(), tumble, 3.0, 25.0, key=jax.random.fold_in(key, 1))
-        result = track(seq.clouds, 0.04, key=jax.random.fold_in(key, 2))
+    seq, result = _benchmark_tumble_tracked(19, jp.targets.fragment(), 0.02, 3.0)
     registered = np.asarray(result.registered())
     assert _all_finite(result)
     attitude, _ = _tumble_errors(seq, result, 0.04)

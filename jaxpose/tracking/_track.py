@@ -552,9 +552,9 @@ WEAK_SIGMAS = 3.0
 """The extrapolation gate of a weak estimate: this many standard deviations of the
 prediction's extrapolation error (`prediction_spread`), at most `WEAK_MAX_DEG`. A prediction
 extrapolated from a short baseline carries its registrations' error times the frames ahead
-over the baseline: with the fixed 1° gate alone, the first frame accepted at 2 cm of range
-noise set a prediction that refused every later one, and two of the tracking benchmark's
-tumbles (Chibis-M and the fragment at 2 cm) registered 2 of 251 frames (docs, Tracking)."""
+over the baseline: with the fixed 1° gate alone, a track whose registrations are all weak
+could accept one frame and refuse every later one (the fragment at 2 cm of range noise,
+tumble 19 of the tracking benchmark: 2 of 251 frames registered; docs, Tracking)."""
 
 WEAK_MAX_DEG = 3.0
 """The widest extrapolation gate, degrees (`WEAK_SIGMAS`): a registration that lands in a
@@ -575,9 +575,10 @@ def prediction_spread(
     frames ahead over the baseline. With nothing registered since frame 0 (`last_k` =
     `base_k`) the prediction is rest, and it is 0.
 
-    Measured on the tracking benchmark's tumbles that differ: the whole σ √(1 + (1 + a)² + a²)
-    as the spread also let a noise-free fragment accept weak registrations 2–3° off against a
-    long baseline, which led the prediction astray until nothing registered (docs, Tracking)."""
+    Counting the whole σ √(1 + (1 + a)² + a²) instead widened the gate on long baselines too,
+    and in a trial on the tracking benchmark a noise-free fragment then accepted weak
+    registrations 2–3° off, which led the prediction astray until nothing registered (docs,
+    Tracking)."""
     sigma = jnp.asarray(sigma)
     span = jnp.asarray(last_k - base_k)
     a = jnp.where(span > 0, (k - last_k) / jnp.maximum(span, 1), 0.0).astype(sigma.dtype)
@@ -606,10 +607,10 @@ def continuity_choice(
     angle = jnp.where(H.distinct, rotation_angle(H.rotation, jnp.broadcast_to(R_pred, H.rotation.shape)), jnp.inf)
     nearest = jnp.argmin(angle)
     gate = jnp.radians(config.thresholds.ambiguous_deg)
-    noise_gate = jnp.minimum(WEAK_SIGMAS * jnp.nan_to_num(jnp.asarray(spread)), jnp.radians(WEAK_MAX_DEG))
+    extrapolation_gate = jnp.minimum(WEAK_SIGMAS * jnp.nan_to_num(jnp.asarray(spread)), jnp.radians(WEAK_MAX_DEG))
     ambiguous = (status == AMBIGUOUS) & (angle[nearest] <= CONTINUITY_FRACTION * gate)
     weak = ((status == LOW_SCORE) | (status == NOT_CONVERGED) | (status == UNCERTAIN)) & (
-        angle[0] <= jnp.maximum(WEAK_FRACTION * gate, noise_gate)
+        angle[0] <= jnp.maximum(WEAK_FRACTION * gate, extrapolation_gate)
     )
     return jnp.where(ambiguous, nearest, 0), ambiguous | weak
 
