@@ -629,10 +629,10 @@ class Config(eqx.Module):
         refined, 6 hypotheses and a start from rest fitted to the surface), then the default
         fine stage from the best hypothesis. `Estimate.hypotheses` holds the distinct
         hypotheses, best first; `Estimate.ambiguous` says that another one explains the clouds
-        as well (a symmetric target). Up to 30 BFGS steps per mode. The fine stage keeps `planar_fraction` 0.7
-        and planes through the centroids (`anchor` "centroid"), as when the capture benchmark
-        was measured: with every plane, noise-free N5 lost one of its four equivalent motions
-        from the hypotheses (`tests/test_capture.py`)."""
+        as well (a symmetric target). Up to 30 BFGS steps per mode. The fine stage keeps
+        `planar_fraction` 0.7 and planes through the centroids (`anchor` "centroid"), as when
+        the capture benchmark was measured: with every plane, noise-free N5 lost one of its
+        four equivalent motions from the hypotheses (`tests/test_capture.py`)."""
         fine = FineStage(planar_fraction=0.7, anchor="centroid")
         base = {"so3": RotationSearch(), "refine": Refine(max_steps=30), "fine": fine}
         return cls(**{**base, **changes})

@@ -188,7 +188,6 @@ def test_the_current_side_keeps_a_noise_free_surface_and_smooths_a_noisy_one():
     assert along < 0.25 * across, (along, across)
 
 
-@pytest.mark.slow  # an option off by default
 def test_a_smoothed_current_side_needs_the_whole_surface():
     with pytest.raises(ValueError, match="curr_slab = inf"):
         jp.FineStage(curr_slab=2.0, smooth_current=True)
