@@ -1,7 +1,7 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
 `uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
-[--set anchors|cost|gates|edges|density|current] [--seed 0] [--from-truth] [--only TEXT]`
+[--set anchors|cost|gates|edges|density|current|symmetric] [--seed 0] [--from-truth] [--only TEXT]`
 
 `--set anchors` (the default): the planes' anchor (the default "hybrid", centroids everywhere,
 points everywhere), the noise-free polish and the within-the-noise stop. `--set cost`: what the
@@ -14,7 +14,9 @@ draws other pairs than the benchmark's (seed 0). `--set density`: the previous s
 `FineStage.points` (the default) or kept whole (`FineStage.prev_points`; docs, Findings: a
 dense previous side). `--set current`: the current points raw (the default) or smoothed onto
 their neighbourhood's plane, on faces or everywhere (`FineStage.smooth_current`,
-`_fine.SMOOTHED_FRACTION`; docs, Findings: a smoothed current side). `--from-truth` runs
+`_fine.SMOOTHED_FRACTION`; docs, Findings: a smoothed current side). `--set symmetric`:
+one-way residuals (the default) or two-way (`FineStage.symmetric`; docs, Findings: two-way
+residuals). `--from-truth` runs
 the fine stage alone from each pair's true motion (`fine_refine`), so that the errors are
 those of the fine objective's own minimum; its "success" then counts the converged fits.
 `--only TEXT` runs only the variants whose name contains TEXT.
@@ -145,7 +147,11 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--levels", default="0,0.5,1,2")
-    parser.add_argument("--set", default="anchors", choices=("anchors", "cost", "gates", "edges", "density", "current"))
+    parser.add_argument(
+        "--set",
+        default="anchors",
+        choices=("anchors", "cost", "gates", "edges", "density", "current", "symmetric"),
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--from-truth", action="store_true")
     parser.add_argument("--only", default="", help="run only the variants whose name contains this")
@@ -207,6 +213,15 @@ def main():
                 "FineStage(smooth_current=True), every current point with a plane smoothed",
                 dataclasses.replace(default, fine=fine_with(default, "smooth_current", True)),
                 {"SMOOTHED_FRACTION": 1.0},
+            ),
+        ]
+    if args.set == "symmetric":
+        variants = [
+            ("default (one-way residuals)", default, {}),
+            (
+                "FineStage(symmetric=True): two-way residuals",
+                dataclasses.replace(default, fine=fine_with(default, "symmetric", True)),
+                {},
             ),
         ]
     variants = [v for v in variants if args.only in v[0]]

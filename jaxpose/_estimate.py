@@ -381,7 +381,9 @@ def fine_passes(
             active = True
         start = jnp.where(polish, best.params, start)
         active = jnp.where(polish, without_range_noise(best), active)
-        run = fine_refine(problem, config, start, tree_select(polish, exact, fine), active=active, smooth=~polish)
+        run = fine_refine(
+            problem, config, start, tree_select(polish, exact, fine), active=active, smooth=~polish, two_way=~polish
+        )
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 
     shapes = jax.eval_shape(lambda: fine_refine(problem, config, starts[0]))

@@ -24,6 +24,9 @@ points near the cutting planes:
   across edges and corners through a (where the centroid lies inside the body).
   Points farther than `FineStage.inlier` from every previous point (surface seen only in one
   cloud) get weight 0.
+- two-way (`FineStage.symmetric`, off by default): each previous point is also matched to
+  its nearest current point and its distance to that point's plane, fitted to the current
+  cloud (`back_side`), joins the residuals (`back_residuals`).
 
 This is point-to-plane ICP (Chen & Medioni 1992) on the selected points:
 rounds of nearest-neighbour matching (a voxel search, or, while the points have moved
@@ -47,7 +50,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._config import Config, FineStage
 from ._neighbours import VoxelGrid, k_nearest, nearest, nearest_in_graph, spread_subset, voxel_grid, voxel_spacing
 from ._poses import PARAMETER_SCALE
-from ._rotations import into_moved_frame
+from ._rotations import into_moved_frame, rotate_components, rotation
 
 ROUND_TOL = 1e-3
 """A round that moves p by less than this (units of 1° and 1 cm: 0.001°, 0.01 mm) ends the
@@ -134,6 +137,8 @@ class SurfaceProblem(Protocol):
     - `fine`: the previous side (`FineCloud`, frame n).
     - `curr`, `curr_valid`: the current points (frame n, `(3, M)`) and their mask.
     - `fine_curr`: the smoothed current side (`CurrentSide`) or None.
+    - `fine_back`: the current points with their planes (`FineCloud`, frame n), for two-way
+      residuals (`FineStage.symmetric`), or None.
     - `d`, `planes`: the cell size (m) and the cutting planes, for the slabs.
     """
 
@@ -142,6 +147,7 @@ class SurfaceProblem(Protocol):
     curr: Array
     curr_valid: Array
     fine_curr: object
+    fine_back: object
     d: Array
     planes: tuple
 
@@ -355,6 +361,30 @@ def current_side(curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Co
     return CurrentSide(b, smoothed, live)
 
 
+def back_side(curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Config, planes, d) -> FineCloud | None:
+    """The current points (frame n, SoA, metres) with their planes, as [`fine_cloud`][] builds
+    the previous side's, for the two-way residuals of `FineStage.symmetric`; None where the
+    config does not ask for them."""
+    if config.fine is None or not config.fine.symmetric:
+        return None
+    return fine_cloud(curr.T, valid, config, planes, d)
+
+
+def out_of_moved_frame(p: Float[Array, "6"], a: Float[Array, "3 K"]) -> Float[Array, "3 K"]:
+    """Points of frame ν (SoA) in frame n: G(θ, φ, ψ) a + (x, y, z), the inverse of
+    `_moved`. Radians and metres."""
+    G = rotation(p[0], p[1], p[2])
+    return jnp.stack(rotate_components(G, a[0], a[1], a[2])) + p[3:, None]
+
+
+def _plane_distance(points: Float[Array, "3 S"], matched: "Matches", weight) -> Float[Array, " S"]:
+    """nᵀx − o of each point against its matched plane (metres); 0 where `weight` is false.
+    Written out per component (see `_residuals`)."""
+    n = matched.normals
+    r = n[0] * points[0] + n[1] * points[1] + n[2] * points[2] - matched.offsets
+    return jnp.where(weight, r, 0.0)
+
+
 EXACT_PLANAR_FRACTION = 0.7
 """Fraction of the previous points, the most planar ones, counted as faces
 (`FineCloud.planar`): [`exact_surface`][] keeps only their planes, and the "hybrid" anchor
@@ -418,10 +448,7 @@ def _residuals(p, b, matched: Matches, weight):
     `jax.jit(jax.jacfwd(...))` returned a wrong Jacobian from 6144 points up on XLA:CPU (jax
     0.10.2; two of its columns equal, so a singular covariance and a wrong Levenberg–Marquardt
     step), while the eager Jacobian was right. `tests/test_fine.py` compares the two."""
-    q = _moved(p, b)
-    n = matched.normals
-    r = n[0] * q[0] + n[1] * q[1] + n[2] * q[2] - matched.offsets
-    return jnp.where(weight, r, 0.0)
+    return _plane_distance(_moved(p, b), matched, weight)
 
 
 def _matches(fine: FineCloud, nearest: Int[Array, " S"], dist: Float[Array, " S"], live, inlier):
@@ -558,8 +585,37 @@ def least_squares_solver(tol: float) -> optx.GaussNewton:
     return optx.GaussNewton(rtol=tol, atol=tol, linear_solver=lx.Normal(lx.Cholesky()))
 
 
+def back_residuals(back: FineCloud, fine: FineCloud, p: Float[Array, "6"], live, inlier):
+    """The two-way half of a round (`FineStage.symmetric`): each previous point with a plane
+    (`fine.valid`, frame ν ≈ the previous cloud's frame n), moved into frame n of the current
+    cloud at p (`out_of_moved_frame`), is matched to its nearest current point (`back`, the
+    voxel search every round); the matches within `inlier` (metres) of a current point with a
+    plane get Cauchy weights from their distances to its plane (`_robust_weights`). Returns
+    a function of p giving the weighted plane distances and, like the forward residuals, the
+    `POINT_WEIGHT` point-to-point ones (metres). `live` (a boolean, possibly traced) false:
+    every weight is 0."""
+    moved = jax.lax.stop_gradient(out_of_moved_frame(p, fine.points))
+    index, dist = nearest(back.grid, moved, NEIGHBOUR_SLOTS)
+    matched, weight, _ = _matches(back, index, dist, fine.valid & live, inlier)
+    root_w = jnp.sqrt(_robust_weights(_plane_distance(moved, matched, weight), weight))
+
+    def residuals(p_):
+        a = out_of_moved_frame(p_, fine.points)
+        plane = root_w * _plane_distance(a, matched, weight)
+        point = POINT_WEIGHT * root_w[None] * (a - matched.points)
+        return plane, point
+
+    return residuals
+
+
 def fine_refine(
-    problem, config: Config, start: Float[Array, "6"], fine: FineCloud | None = None, active=True, smooth=True
+    problem,
+    config: Config,
+    start: Float[Array, "6"],
+    fine: FineCloud | None = None,
+    active=True,
+    smooth=True,
+    two_way=True,
 ) -> FineResult:
     """Minimise the point-to-plane residuals of the selected current points from `start` (frame n).
     See the module docstring. Pure and jittable.
@@ -577,7 +633,9 @@ def fine_refine(
     runs: the result is `start`, not converged, with no inliers, so that a caller can compile
     one run and skip it where it is not needed (`jaxpose._estimate.fine_passes`). `smooth`
     (a boolean, possibly traced): fit the smoothed current points where the problem has them
-    ([`CurrentSide`][]), else the raw ones (the noise-free polish).
+    ([`CurrentSide`][]), else the raw ones (the noise-free polish). `two_way` (a boolean,
+    possibly traced): where the problem holds the current side's planes (`fine_back`,
+    `FineStage.symmetric`), also fit the previous points to them ([`back_residuals`][]).
     """
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)
@@ -593,6 +651,7 @@ def fine_refine(
     solver = least_squares_solver(config.fine.tol)
 
     reach = GRAPH_SHIFT * fine.grid.size
+    back = getattr(problem, "fine_back", None)
 
     def one_round(state):
         # last: each point's last match; reached: whether the last voxel search found it one;
@@ -607,12 +666,14 @@ def fine_refine(
         r0 = _residuals(y * scale, b, matched, weight)
         w0 = _robust_weights(r0, weight)
         root_w = jnp.sqrt(w0)
+        back_terms = None if back is None else back_residuals(back, fine, y * scale, two_way, inlier)
 
         def fn(y_, _):
             p_ = y_ * scale
             plane = root_w * _residuals(p_, b, matched, weight)
             point = POINT_WEIGHT * root_w[None] * (_moved(p_, b) - matched.points)
-            return plane / RESIDUAL_UNIT, point / RESIDUAL_UNIT
+            terms = (plane, point) if back_terms is None else (plane, point, *back_terms(p_))
+            return tuple(t / RESIDUAL_UNIT for t in terms)
 
         sol = optx.least_squares(fn, solver, y, None, max_steps=config.fine.steps, throw=False)
         step = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value - y, 0.0)
@@ -664,6 +725,8 @@ __all__ = [
     "CurrentSide",
     "SurfaceProblem",
     "current_side",
+    "back_side",
+    "back_residuals",
     "FineCloud",
     "FineResult",
     "fine_cloud",

@@ -29,7 +29,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
-from ._fine import CurrentSide, FineCloud, current_side, fine_cloud
+from ._fine import CurrentSide, FineCloud, back_side, current_side, fine_cloud
 from ._frame import FRAME_STATUS_TEXT, MIN_POINTS, PlaneFrame, plane_frame
 from ._neighbours import spread_subset
 from ._programs import BoundedJit
@@ -75,6 +75,8 @@ class Problem(eqx.Module):
       or None.
     - `fine_curr`: the fine stage's current side, with its face-like points smoothed
       (`CurrentSide`), or None where `FineStage.smooth_current` is false (or no fine stage).
+    - `fine_back`: the current points with their planes (`FineCloud`, frame n), which the
+      previous points are matched against where `FineStage.symmetric`; None elsewhere.
     """
 
     frame: PlaneFrame
@@ -100,6 +102,7 @@ class Problem(eqx.Module):
     grid_cells: int = eqx.field(static=True)
     coarse: Problem | None = None
     fine_curr: CurrentSide | None = None
+    fine_back: FineCloud | None = None
 
     @property
     def search_problem(self) -> Problem:
@@ -528,4 +531,5 @@ def _problem_at_level(
         grid_cells=C,
         coarse=coarse,
         fine_curr=current_side(curr_n, curr_valid, config),
+        fine_back=back_side(curr_n, curr_valid, config, planes, d),
     )

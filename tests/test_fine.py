@@ -14,12 +14,14 @@ from hypothesis import strategies as st
 import jaxpose as jp
 from jaxpose._fine import (
     Matches,
+    _moved,
     _residuals,
     current_side,
     exact_surface,
     fine_cloud,
     fine_covariance,
     fine_refine,
+    out_of_moved_frame,
     select_current,
     smallest_eigen,
     spread_subset,
@@ -198,6 +200,58 @@ def test_a_smoothed_current_side_needs_the_whole_surface():
     smooth = dataclasses.replace(config, fine=jp.FineStage(smooth_current=True))
     side = jp.Problem.build(cloud, cloud, smooth).fine_curr
     assert side is not None and int(side.live.sum()) == cloud.points.shape[0]
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+    st.lists(st.floats(-2.0, 2.0), min_size=3, max_size=3),
+    st.integers(0, 2**31 - 1),
+)
+def test_out_of_moved_frame_inverts_the_move_into_it(angles, shift, seed):
+    p = jnp.asarray([*angles, *shift])
+    b = jnp.asarray(np.random.default_rng(seed).uniform(-3, 3, (3, 7)))
+    np.testing.assert_allclose(np.asarray(out_of_moved_frame(p, _moved(p, b))), np.asarray(b), atol=1e-12)
+
+
+def test_two_way_residuals_need_the_whole_surface_and_are_off_by_default():
+    with pytest.raises(ValueError, match="prev_slab = curr_slab = inf"):
+        jp.FineStage(prev_slab=3.0, symmetric=True)
+    with pytest.raises(ValueError, match="prev_slab = curr_slab = inf"):
+        jp.FineStage(curr_slab=2.0, symmetric=True)
+    pts = jnp.asarray(_ridge(1.0).T)
+    cloud = jp.Cloud.from_points(pts.T + jnp.array([[0.0, 0.0, 5.0]]))
+    config = jp.Config(capacities=jp.Capacities(max_points=4096))
+    assert jp.Problem.build(cloud, cloud, config).fine_back is None
+    back = jp.Problem.build(cloud, cloud, dataclasses.replace(config, fine=jp.FineStage(symmetric=True))).fine_back
+    # The current side's planes are built as the previous side's: the same cloud, the same planes.
+    same = jp.Problem.build(cloud, cloud, config).fine
+    np.testing.assert_array_equal(np.asarray(back.valid), np.asarray(same.valid))
+    np.testing.assert_allclose(np.asarray(back.offsets), np.asarray(same.offsets), atol=1e-12)
+
+
+def test_two_way_fits_recover_a_noise_free_motion_and_switch_off_to_the_one_way_fit(paper_clouds):
+    """From a start 2° off on the paper's noise-free N5 pair, the two-way fit ends at the
+    truth as the one-way fit does; with `two_way` false it is the one-way fit, step for step."""
+    prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
+    one = WHOLE_CLOUD
+    two = dataclasses.replace(one, fine=dataclasses.replace(one.fine, symmetric=True))
+    truth = None
+    results = {}
+    for name, config, two_way in (("one", one, True), ("two", two, True), ("two off", two, False)):
+        problem = jp.Problem.build(prev, curr, config)
+        if truth is None:
+            truth = jp.true_displacement(
+                problem.frame, paper_rotation("previous"), T_PAPER, paper_rotation("variant2"), T_PAPER
+            )
+        start = truth + jnp.array([np.radians(2.0), -np.radians(1.5), np.radians(1.0), 0.01, -0.01, 0.01])
+        results[name] = fine_refine(problem, config, start, two_way=two_way)
+    for name in ("one", "two"):
+        err = np.abs(np.asarray(results[name].params - truth))
+        assert bool(results[name].converged)
+        assert np.degrees(err[:3]).max() < 0.05 and 100 * err[3:].max() < 0.05, (name, err)
+    np.testing.assert_array_equal(np.asarray(results["two off"].params), np.asarray(results["one"].params))
+    assert int(results["two off"].steps) == int(results["one"].steps)
 
 
 # The tracking preset fits the whole cloud instead of the slabs around the cutting planes.

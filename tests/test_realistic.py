@@ -257,3 +257,25 @@ def test_a_dense_previous_side_moves_the_fine_minimum_towards_the_truth():
         errors[label] = realistic.errors(case, R, t)
     assert errors["all"]["rotation_error_deg"] < 0.1 and errors["all"]["centroid_error_cm"] < 0.1, errors
     assert errors["default"]["rotation_error_deg"] > 2 * errors["all"]["rotation_error_deg"], errors
+
+
+@pytest.mark.slow
+def test_two_way_residuals_move_the_fine_minimum_towards_the_truth():
+    """`FineStage.symmetric` also fits the previous points to the current side's planes: on the
+    noisy mesh debris (σ 0.5 cm, `make_cases`' first draw of it at that level) the fine stage's
+    own minimum, reached from the true motion, lies closer to it in rotation and less than
+    0.6 times as far in centroid than the one-way fit's (measured in float64: 0.111° and 0.099
+    cm against 0.180° and 0.214 cm)."""
+    case = realistic.make_cases(1, names=("debris",), levels=(0.5,))[0]
+    errors = {}
+    for symmetric in (False, True):
+        config = sized_config(case.prev, case.curr, jp.Config(fine=jp.FineStage(symmetric=symmetric)))
+        problem = jp.Problem.build(case.prev, case.curr, config)
+        assert (problem.fine_back is not None) == symmetric
+        truth = displacement_from_motion(problem.frame.origin, problem.frame.axes, case.rotation, case.translation)
+        fit = fine_refine(problem, config, truth.astype(problem.d.dtype))
+        assert bool(fit.converged)
+        R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, fit.params)
+        errors[symmetric] = realistic.errors(case, R, t)
+    assert errors[True]["rotation_error_deg"] < 0.8 * errors[False]["rotation_error_deg"], errors
+    assert errors[True]["centroid_error_cm"] < 0.6 * errors[False]["centroid_error_cm"], errors

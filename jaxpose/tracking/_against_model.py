@@ -44,7 +44,7 @@ from .._checks import is_concrete
 from .._cloud import Cloud
 from .._config import Config
 from .._estimate import LOW_SCORE, NON_FINITE, NOT_CONVERGED, SUCCESS, UNCERTAIN, is_uncertain
-from .._fine import CurrentSide, FineCloud, current_side, fine_cloud, fine_refine
+from .._fine import CurrentSide, FineCloud, back_side, current_side, fine_cloud, fine_refine
 from .._frame import PlaneFrame, plane_frame
 from .._poses import displacement_from_motion, motion_from_displacement
 from .._problem import _current_points, sized_sequence_config
@@ -78,8 +78,9 @@ class ModelSide(eqx.Module):
 class _ModelProblem(eqx.Module):
     """A `jaxpose._fine.SurfaceProblem`: the fields of a `Problem` that the fine stage and its
     covariance read. The model's side, the current cloud in frame n (`curr`, SoA, and
-    `curr_valid`), the smoothed current side if the config asks for it, and the cutting
-    planes' geometry (`d`, `planes`; the slabs are the whole surface by default)."""
+    `curr_valid`), the smoothed current side and the current side's planes if the config asks
+    for them, and the cutting planes' geometry (`d`, `planes`; the slabs are the whole surface
+    by default)."""
 
     frame: PlaneFrame
     fine: FineCloud
@@ -87,6 +88,7 @@ class _ModelProblem(eqx.Module):
     curr: Float[Array, "3 M"]
     curr_valid: Bool[Array, " M"]
     fine_curr: CurrentSide | None
+    fine_back: FineCloud | None
     planes: tuple = eqx.field(static=True)
 
 
@@ -138,6 +140,7 @@ def register_frame(
         curr=curr,
         curr_valid=curr_valid,
         fine_curr=current_side(curr, curr_valid, config),
+        fine_back=back_side(curr, curr_valid, config, config.patterns.planes(), jnp.asarray(config.patterns.d, dtype)),
         planes=config.patterns.planes(),
     )
     start = displacement_from_motion(frame.origin, frame.axes, rotation.astype(dtype), translation.astype(dtype))
