@@ -324,16 +324,18 @@ class FineStage(eqx.Module):
       draw, was mixed at 0.5 cm, and the neighbour search over the current cloud made the
       median call 26–100 ms longer (docs, Findings: a smoothed current side).
     - `symmetric`: two-way residuals (static; needs `prev_slab` and `curr_slab` inf): each
-      round also matches every previous point that has a plane to its nearest current point
-      and adds its distance to that point's plane, fitted to the current cloud
+      round also matches `_fine.BACK_POINTS` previous points that have a plane (thinned
+      evenly) to their nearest current points and adds their distances to those points'
+      planes, fitted to the current cloud
       (`Problem.fine_back`, built once in [`jaxpose.Problem.build`][]), beside the current
       points' distances to the previous planes. Fitted from the true motion, the one-way
       fit's minimum lies several of its own standard deviations from the truth under range
       noise, farther as the noise grows (most on the faceted mesh debris); fitted both
       ways it lies nearer. The noise-free polish stays one-way (its planes through the
       points are exact). Off by default: on the realistic benchmark's 224 pairs it cut the
-      median rotation error at σ 0.5–2 cm and the median centroid error at 0.5 and 1 cm,
-      and each call took 1.7–2.3 times as long (docs, Findings: two-way residuals).
+      median rotation error at σ 0.5–2 cm and the median centroid error at 1 cm, and each
+      call took 1.1–1.25 times as long, but it added a false success at 2 cm (docs,
+      Findings: two-way residuals).
     - `rounds`: most match-then-solve rounds (static).
     - `steps`, `tol`: Gauss–Newton's step limit per round and its rtol = atol, in units
       of 1° and 1 cm (static). At 1e-4, on the paper's pairs × 3 keys every result is within

@@ -24,9 +24,10 @@ points near the cutting planes:
   across edges and corners through a (where the centroid lies inside the body).
   Points farther than `FineStage.inlier` from every previous point (surface seen only in one
   cloud) get weight 0.
-- two-way (`FineStage.symmetric`, off by default): each previous point is also matched to
-  its nearest current point and its distance to that point's plane, fitted to the current
-  cloud (`back_side`), joins the residuals (`back_residuals`).
+- two-way (`FineStage.symmetric`, off by default): previous points (`BACK_POINTS`, thinned
+  evenly) are also matched to their nearest current points, and their distances to those
+  points' planes, fitted to the current cloud (`back_side`), join the residuals
+  (`back_residuals`).
 
 This is point-to-plane ICP (Chen & Medioni 1992) on the selected points:
 rounds of nearest-neighbour matching (a voxel search, or, while the points have moved
@@ -585,22 +586,32 @@ def least_squares_solver(tol: float) -> optx.GaussNewton:
     return optx.GaussNewton(rtol=tol, atol=tol, linear_solver=lx.Normal(lx.Cholesky()))
 
 
+BACK_POINTS = 1024
+"""Previous points (with a plane, thinned evenly) that the two-way half of a round matches
+against the current side (`back_residuals`). Every previous point (4096) made the call 1.7–2.3
+times as long as the one-way fit's on the realistic benchmark, these 1.1–1.25 times (the
+back matches search the voxels in every round), with mixed changes in accuracy (docs,
+Findings: two-way residuals)."""
+
+
 def back_residuals(back: FineCloud, fine: FineCloud, p: Float[Array, "6"], live, inlier):
-    """The two-way half of a round (`FineStage.symmetric`): each previous point with a plane
-    (`fine.valid`, frame ν ≈ the previous cloud's frame n), moved into frame n of the current
-    cloud at p (`out_of_moved_frame`), is matched to its nearest current point (`back`, the
-    voxel search every round); the matches within `inlier` (metres) of a current point with a
-    plane get Cauchy weights from their distances to its plane (`_robust_weights`). Returns
-    a function of p giving the weighted plane distances and, like the forward residuals, the
-    `POINT_WEIGHT` point-to-point ones (metres). `live` (a boolean, possibly traced) false:
-    every weight is 0."""
-    moved = jax.lax.stop_gradient(out_of_moved_frame(p, fine.points))
+    """The two-way half of a round (`FineStage.symmetric`): `BACK_POINTS` previous points with
+    a plane (`fine.valid`, thinned evenly; frame ν ≈ the previous cloud's frame n), each moved
+    into frame n of the current cloud at p (`out_of_moved_frame`), are matched to their
+    nearest current points (`back`, the voxel search every round); the matches within
+    `inlier` (metres) of a current point with a plane get Cauchy weights from their distances
+    to its plane (`_robust_weights`). Returns a function of p giving the weighted plane
+    distances and, like the forward residuals, the `POINT_WEIGHT` point-to-point ones
+    (metres). `live` (a boolean, possibly traced) false: every weight is 0."""
+    idx, slots = spread_subset(fine.valid, min(BACK_POINTS, fine.valid.shape[0]))
+    points = fine.points[:, idx]
+    moved = jax.lax.stop_gradient(out_of_moved_frame(p, points))
     index, dist = nearest(back.grid, moved, NEIGHBOUR_SLOTS)
-    matched, weight, _ = _matches(back, index, dist, fine.valid & live, inlier)
+    matched, weight, _ = _matches(back, index, dist, slots & live, inlier)
     root_w = jnp.sqrt(_robust_weights(_plane_distance(moved, matched, weight), weight))
 
     def residuals(p_):
-        a = out_of_moved_frame(p_, fine.points)
+        a = out_of_moved_frame(p_, points)
         plane = root_w * _plane_distance(a, matched, weight)
         point = POINT_WEIGHT * root_w[None] * (a - matched.points)
         return plane, point
