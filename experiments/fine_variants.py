@@ -16,9 +16,9 @@ dense previous side). `--set current`: the current points raw (the default) or s
 their neighbourhood's plane, on faces or everywhere (`FineStage.smooth_current`,
 `_fine.SMOOTHED_FRACTION`; docs, Findings: a smoothed current side). `--set symmetric`:
 one-way residuals (the default) or two-way (`FineStage.symmetric`; docs, Findings: two-way
-residuals). `--from-truth` runs
-the fine stage alone from each pair's true motion (`fine_refine`), so that the errors are
-those of the fine objective's own minimum; its "success" then counts the converged fits.
+residuals). `--from-truth` runs the fine stage alone from each pair's true motion
+(`fine_refine`), so that the errors are those of the fine objective's own minimum; its
+"success" then counts the converged fits.
 `--only TEXT` runs only the variants whose name contains TEXT.
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),

@@ -326,9 +326,9 @@ class FineStage(eqx.Module):
     - `symmetric`: two-way residuals (static; needs `prev_slab` and `curr_slab` inf): each
       round also matches `_fine.BACK_POINTS` previous points that have a plane (thinned
       evenly) to their nearest current points and adds their distances to those points'
-      planes, fitted to the current cloud
-      (`Problem.fine_back`, built once in [`jaxpose.Problem.build`][]), beside the current
-      points' distances to the previous planes. Fitted from the true motion, the one-way
+      planes, fitted to the current cloud (`Problem.fine_back`, built once in
+      [`jaxpose.Problem.build`][]), beside the current points' distances to the previous
+      planes. Fitted from the true motion, the one-way
       fit's minimum lies several of its own standard deviations from the truth under range
       noise, farther as the noise grows (most on the faceted mesh debris); fitted both
       ways it lies nearer. The noise-free polish stays one-way (its planes through the
