@@ -594,20 +594,24 @@ back matches search the voxels in every round), with mixed changes in accuracy (
 Findings: two-way residuals)."""
 
 
-def back_residuals(back: FineCloud, fine: FineCloud, p: Float[Array, "6"], live, inlier):
-    """The two-way half of a round (`FineStage.symmetric`): `BACK_POINTS` previous points with
-    a plane (`fine.valid`, thinned evenly; frame ν ≈ the previous cloud's frame n), each moved
-    into frame n of the current cloud at p (`out_of_moved_frame`), are matched to their
-    nearest current points (`back`, the voxel search every round); the matches within
-    `inlier` (metres) of a current point with a plane get Cauchy weights from their distances
-    to its plane (`_robust_weights`). Returns a function of p giving the weighted plane
-    distances and, like the forward residuals, the `POINT_WEIGHT` point-to-point ones
-    (metres). `live` (a boolean, possibly traced) false: every weight is 0."""
-    idx, slots = spread_subset(fine.valid, min(BACK_POINTS, fine.valid.shape[0]))
-    points = fine.points[:, idx]
+def back_points(fine: FineCloud) -> tuple[Float[Array, "3 B"], Bool[Array, " B"]]:
+    """`BACK_POINTS` of the previous side's points with a plane (`fine.valid`), thinned evenly
+    (SoA, frame n), and their mask: the queries of [`back_residuals`][], chosen once a fit."""
+    idx, live = spread_subset(fine.valid, min(BACK_POINTS, fine.valid.shape[0]))
+    return fine.points[:, idx], live
+
+
+def back_residuals(back: FineCloud, points: Float[Array, "3 B"], live, p: Float[Array, "6"], inlier):
+    """The two-way half of a round (`FineStage.symmetric`): the previous points `points`
+    (frame ν ≈ the previous cloud's frame n; [`back_points`][]) where `live`, each moved into
+    frame n of the current cloud at p (`out_of_moved_frame`), are matched to their nearest
+    current points (`back`, the voxel search every round); the matches within `inlier`
+    (metres) of a current point with a plane get Cauchy weights from their distances to its
+    plane (`_robust_weights`). Returns a function of p giving the weighted plane distances
+    and, like the forward residuals, the `POINT_WEIGHT` point-to-point ones (metres)."""
     moved = jax.lax.stop_gradient(out_of_moved_frame(p, points))
     index, dist = nearest(back.grid, moved, NEIGHBOUR_SLOTS)
-    matched, weight, _ = _matches(back, index, dist, slots & live, inlier)
+    matched, weight, _ = _matches(back, index, dist, live, inlier)
     root_w = jnp.sqrt(_robust_weights(_plane_distance(moved, matched, weight), weight))
 
     def residuals(p_):
@@ -662,7 +666,10 @@ def fine_refine(
     solver = least_squares_solver(config.fine.tol)
 
     reach = GRAPH_SHIFT * fine.grid.size
-    back = getattr(problem, "fine_back", None)
+    back = problem.fine_back
+    if back is not None:
+        queries, queried = back_points(fine)
+        queried = queried & two_way
 
     def one_round(state):
         # last: each point's last match; reached: whether the last voxel search found it one;
@@ -677,7 +684,7 @@ def fine_refine(
         r0 = _residuals(y * scale, b, matched, weight)
         w0 = _robust_weights(r0, weight)
         root_w = jnp.sqrt(w0)
-        back_terms = None if back is None else back_residuals(back, fine, y * scale, two_way, inlier)
+        back_terms = None if back is None else back_residuals(back, queries, queried, y * scale, inlier)
 
         def fn(y_, _):
             p_ = y_ * scale
