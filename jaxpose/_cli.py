@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -376,6 +377,7 @@ def estimate(
         "soft_score": float(result.soft),
         "ambiguous": bool(result.ambiguous),
         "std": _standard_deviations(result.covariance),
+        "spread_deg": math.degrees(float(result.spread)),
         "hypotheses": [
             {
                 "rotation_angles_deg": deg.tolist(),
@@ -405,6 +407,8 @@ def estimate(
         if out["std"] is not None:
             std = out["std"]
             typer.echo(f"1σ camera         {std['rotation_deg']:9.4f} °  {std['translation_cm']:9.4f} cm")
+        if out["spread_deg"] > 0:
+            typer.echo(f"spread of equally good fits {out['spread_deg']:.4f} °")
         for k, h in enumerate(out["hypotheses"][1:], start=2):
             typer.echo(f"hypothesis {k}: camera θ φ ψ ° {fmt(h['rotation_angles_deg'])}  score {h['score']:.3f}")
     raise typer.Exit(0 if out["status"] == 0 else 1)

@@ -305,6 +305,51 @@ def test_two_equally_good_fits_far_apart_are_ambiguous(b_angles, b_inliers, expe
     assert bool(equally_good_and_apart(b, a, config)) == expected
 
 
+def _stacked(*fits):
+    return jax.tree.map(lambda *x: jnp.stack(x), *fits)
+
+
+@pytest.mark.parametrize(
+    "others, expected_deg",
+    [
+        ([((0.0, 0.8, 0.0), 0.672)], 0.8),  # an equally good fit 0.8° away
+        ([((0.0, 0.8, 0.0), 0.69)], 0.0),  # it explains clearly more: no tie (the chosen lost on purpose)
+        ([((0.0, 0.8, 0.0), 0.60)], 0.0),  # it explains clearly less
+        ([((0.0, 0.8, 0.0), 0.0)], 0.0),  # an inactive run (no inliers)
+        ([((0.3, 0.0, 0.0), 0.665), ((0.0, 0.0, 0.6), 0.675), ((5.0, 0.0, 0.0), 0.5)], 0.6),
+    ],
+)
+def test_the_spread_is_the_largest_angle_to_an_equally_good_fit(others, expected_deg):
+    """`fit_spread`: over the live runs whose inlier fractions lie within `FINE_TIE` of the
+    chosen fit's, the largest rotation angle to it (radians); the chosen run itself adds 0."""
+    from jaxpose._estimate import fit_spread
+
+    chosen = _fine_result((0.0, 0.0, 0.0), 0.67)
+    runs = _stacked(chosen, *(_fine_result(angles, inliers) for angles, inliers in others))
+    spread = float(fit_spread(chosen, runs, 1 + len(others)))
+    np.testing.assert_allclose(spread, np.radians(expected_deg), rtol=1e-4, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "std_deg, spread_deg, expected",
+    [(0.2, 0.0, False), (0.2, 0.4, False), (0.2, 0.6, True), (0.0, 0.7, True), (0.3, 0.3, True)],
+)
+def test_the_spread_of_equally_good_fits_counts_towards_uncertain(std_deg, spread_deg, expected):
+    """`Status.uncertain` combines the covariance's largest rotation standard deviation with half
+    the spread in quadrature: √(0.2² + 0.3²) = 0.36° > 1/3°, √(0.2² + 0.2²) = 0.28° is not."""
+    cov = np.eye(6) * 1e-12
+    cov[:3, :3] += np.radians(std_deg) ** 2 * np.diag([1.0, 0.0, 0.0])
+    uncertain = is_uncertain(jnp.asarray(cov), jp.Config(), jnp.asarray(np.radians(spread_deg)))
+    assert bool(uncertain) == expected
+
+
+def test_the_paper_pair_has_no_spread(n5_estimate):
+    """The noise-free paper pair: the fits from the refine's result and from rest agree, so the
+    status keeps its success on the covariance alone."""
+    assert float(n5_estimate.spread) < np.radians(0.01)
+    assert bool(n5_estimate.success)
+
+
 def _frame_with_moments(moments):
     from jaxpose._frame import PlaneFrame
 

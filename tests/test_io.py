@@ -95,6 +95,7 @@ def test_estimate_command_on_files(saved_pair, paper_clouds, monkeypatch, tmp_pa
     np.testing.assert_allclose(first["rotation_angles_deg"], out["camera_frame"]["rotation_angles_deg"])
     np.testing.assert_allclose(first["translation_cm"], out["camera_frame"]["translation_cm"])
     assert out["ambiguous"] in (True, False)
+    assert 0.0 <= out["spread_deg"] < 0.5  # degrees: the fits of a noise-free pair agree
 
 
 def test_estimate_command_rejects_bad_input(saved_pair, tmp_path):

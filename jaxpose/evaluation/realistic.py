@@ -223,6 +223,7 @@ def run_jaxpose(cases: list[Case], config=None, seed: int = 0, progress: Callabl
                 seconds=seconds,
                 status=STATUS_NAME[int(est.status)],
                 rotation_std_deg=_rotation_std_deg(est),
+                spread_deg=math.degrees(float(est.spread)),
             )
         )
         if progress is not None:
