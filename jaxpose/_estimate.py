@@ -142,9 +142,9 @@ class Estimate(eqx.Module):
       the result `Status.uncertain`.
     - `spread`: the largest rotation angle (radians) between the estimate and another fit of
       the fine stage, from another start, that explains the current cloud as well (inlier
-      fractions within `FINE_TIE`; [`fit_spread`][]): two minima of the fine objective that
-      the data do not tell apart. 0 where there is none, where the fine stage's result was
-      not kept, and with the capture stage.
+      fractions within `FINE_TIE`; `jaxpose._estimate.fit_spread`): two minima of the fine
+      objective that the data do not tell apart. 0 where there is none, where the fine
+      stage's result was not kept, and with the capture stage.
     - `hypotheses`: the distinct motions found, best first ([`Hypotheses`][jaxpose.Hypotheses]):
       with the capture stage (`Config.so3`) its `RotationSearch.hypotheses`; otherwise the
       chosen fit and the alternative (or the estimate alone without a fine stage).
