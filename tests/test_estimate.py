@@ -313,7 +313,7 @@ def _stacked(*fits):
     "others, expected_deg",
     [
         ([((0.0, 0.8, 0.0), 0.672)], 0.8),  # an equally good fit 0.8° away
-        ([((0.0, 0.8, 0.0), 0.69)], 0.0),  # it explains clearly more: no tie (the chosen lost on purpose)
+        ([((0.0, 0.8, 0.0), 0.69)], 0.0),  # 0.02 more: no tie (a fit the choice would have preferred)
         ([((0.0, 0.8, 0.0), 0.60)], 0.0),  # it explains clearly less
         ([((0.0, 0.8, 0.0), 0.0)], 0.0),  # an inactive run (no inliers)
         ([((0.3, 0.0, 0.0), 0.665), ((0.0, 0.0, 0.6), 0.675), ((5.0, 0.0, 0.0), 0.5)], 0.6),
