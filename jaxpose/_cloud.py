@@ -52,10 +52,13 @@ class Cloud(eqx.Module):
         return jnp.where(self.valid[..., None], self.points, 0).astype(dtype)
 
     def floating(self) -> Cloud:
-        """This cloud with `points` as `masked_points` (floats, invalid rows zeroed): what the
-        Python boundary passes on, so that integer points reuse the float program instead of
-        compiling one of their own, and no NaN of an invalid row enters it."""
-        return Cloud(self.masked_points, self.valid)
+        """This cloud with `points` as `masked_points` (invalid rows zeroed) in JAX's default
+        float dtype (float64 with `jax_enable_x64`, else float32): what the Python boundary
+        passes on, so that integer or float32 points reuse the program of the session's
+        precision instead of compiling one of their own, and no NaN of an invalid row enters
+        it. Under x64 a float32 cloud would otherwise meet the libraries' float64 constants
+        (evosax's, optimistix's) inside loops that need one dtype, and fail to trace."""
+        return Cloud(self.masked_points.astype(jnp.result_type(float)), self.valid)
 
     @property
     def num_valid(self) -> Array:

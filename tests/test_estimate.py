@@ -36,6 +36,18 @@ def n5_estimate(paper_clouds):
     return jp.estimate(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], CONFIG, key=jax.random.key(0))
 
 
+def test_float32_clouds_run_in_the_sessions_precision(paper_clouds):
+    """Under `jax_enable_x64` (the tests' setting) float32 clouds go through the Python boundary
+    as float64 (`Cloud.floating`) and give the float64 program's estimate."""
+    prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
+    single = [jp.Cloud(jnp.asarray(c.points, jnp.float32), c.valid) for c in (prev, curr)]
+    est = jp.estimate(*single, CONFIG, key=jax.random.key(0))
+    assert est.params.dtype == jnp.float64
+    assert int(est.status) == SUCCESS, STATUS_TEXT[int(est.status)]
+    angle_deg, shift_cm = component_errors(est, "variant2")
+    assert angle_deg <= 0.001 and shift_cm <= 0.001, (angle_deg, shift_cm)
+
+
 def component_errors(est, variant):
     """Largest angle error (°) and translation-component error (cm) in frame n, as issue 4."""
     truth = jp.true_displacement(est.frame, paper_rotation("previous"), T_PAPER, paper_rotation(variant), T_PAPER)
