@@ -245,6 +245,17 @@ def test_track_needs_a_key_and_checks_its_inputs():
         track(bad, 0.04, key=jax.random.key(0))
 
 
+def test_track_runs_float32_clouds_in_the_sessions_precision():
+    """Under `jax_enable_x64` (the tests' setting) a float32 sequence goes through `track`'s
+    Python boundary as float64 (`Cloud.floating`): it traces, and every output is finite."""
+    cloud = jp.simulate(jp.Camera.camcube2(), jp.targets.n5(), *paper_pose("previous"))
+    clouds = jax.tree.map(lambda x: jnp.stack([x, x]), cloud)
+    single = jp.Cloud(jnp.asarray(clouds.points, jnp.float32), clouds.valid)
+    result = track(single, 0.04, jp.Config.fast(), key=jax.random.key(0))
+    assert result.rate.dtype == jnp.float64
+    assert _all_finite(result)
+
+
 def _tumble_errors(seq, result, dt):
     R = np.asarray(seq.rotations)
     attitude = np.degrees(float(jp.rotation_angle(result.attitude[-1], R[-1] @ R[0].T)))

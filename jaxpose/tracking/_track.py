@@ -910,6 +910,7 @@ def track(
     if not is_concrete(clouds):
         return _track(clouds, jnp.asarray(dt), config, key, keyframe_every, guided, keyframe_reach, filter_options)
     _check_sequence(clouds, dt)
+    clouds = clouds.floating()  # the session's float dtype: float32 or integer points reuse its program
     config = sized_sequence_config(clouds, config)
     dtype = clouds.points.dtype
     return _track_program(
