@@ -29,6 +29,12 @@ separately). Per family and overall: median, p90 and max.
           default run (`results/tracking_benchmark_chains.npz`) through `filter_keyframes`
           with other options; the registrations, so their statuses, counts and times, are
           those of the saved run.
+    uv run python experiments/tracking_benchmark.py sweep
+        → results/tracking_refilter_sweep.{json,md}: the saved registrations of the last
+          default run through `filter_keyframes` with each of `SWEEP`'s settings (one option
+          moved from the default at a time, and a floor added to every measurement's
+          covariance), rate and attitude errors at the end: how much the filter's tuning
+          moves the rate goal with the registrations held fixed
     uv run python experiments/tracking_benchmark.py reach [tumbles] [duration_s] [rate_hz]
         → results/tracking_reach.{json,md}: how far one keyframe reaches: every frame of
           `tumbles` other random tumbles (seeds 3000 + i, not the benchmark's) registered
@@ -257,6 +263,83 @@ def refilter(options: dict, name: str) -> None:
     write(rows, len(rows), duration, rate_hz, f"tracking_refilter_{name}")
 
 
+SWEEP = (
+    {},
+    {"rate_noise": 1e-5},
+    {"rate_noise": 1e-3},
+    {"spin_accel_noise": 1e-5},
+    {"spin_accel_noise": 1e-3},
+    {"accel_noise": 1e-3},
+    {"accel_noise": 1e-1},
+    {"shared_fraction": 0.3},
+    {"shared_fraction": 0.7},
+    {"spin_accel_sigma": 0.003},
+    {"spin_accel_sigma": 0.03},
+    {"floor_deg": 0.02},
+    {"floor_deg": 0.05},
+    {"floor_deg": 0.1},
+)
+"""`sweep`'s settings: `filter_keyframes` options, one moved from its default at a time, and
+`floor_deg`, a standard deviation (°) added in quadrature to every measurement's rotation
+block (the registrations' covariance is overconfident on some views: a floor tells the filter
+to trust no registration beyond it)."""
+
+
+def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
+    """`chain` with (floor_deg, in radians)² added to the rotation block of every measurement
+    covariance (rad², frame c)."""
+    floor = jnp.diag(jnp.asarray([np.radians(floor_deg) ** 2] * 3 + [0.0] * 3, chain.relative_cov.dtype))
+    return eqx.tree_at(lambda c: c.relative_cov, chain, chain.relative_cov + floor)
+
+
+def sweep() -> None:
+    """The saved registrations of the last default run through `filter_keyframes` with each of
+    `SWEEP`'s settings → `tracking_refilter_sweep.{json,md}`: per setting, the rate error at
+    the end (°/s: median, p90, max over the tumbles) and the median attitude error (°)."""
+    benchmark, tumbles = saved_tumbles()
+    rate_hz = benchmark["rate_hz"]
+    rows = []
+    for setting in SWEEP:
+        options = {k: v for k, v in setting.items() if k != "floor_deg"}
+        run = jax.jit(lambda chain, options=options: filter_keyframes(chain, 1 / rate_hz, **options))
+        errors = [
+            filter_errors(
+                run(with_rotation_floor(chain_of_track(t), setting.get("floor_deg", 0.0))), t["truth"], rate_hz
+            )
+            for t in tumbles
+        ]
+        rate = np.array([e["rate_error_deg_s"] for e in errors])
+        attitude = np.array([e["attitude_error_deg"] for e in errors])
+        rows.append(
+            {
+                "setting": setting,
+                "rate_error_deg_s": {
+                    "median": float(np.median(rate)),
+                    "p90": float(np.percentile(rate, 90)),
+                    "max": float(rate.max()),
+                },
+                "attitude_error_deg_median": float(np.median(attitude)),
+                "non_finite": int(sum(e["non_finite"] for e in errors)),
+            }
+        )
+    lines = [
+        f"The registrations of `tracking_benchmark.json` ({len(tumbles)} tumbles) filtered again, "
+        "one setting moved at a time.",
+        "",
+        "| setting | rate error at the end, °/s: median / p90 / max | attitude error median, ° | non-finite |",
+        "|---|---|---|---|",
+    ]
+    for r in rows:
+        name = ", ".join(f"{k}={v}" for k, v in r["setting"].items()) or "default"
+        e = r["rate_error_deg_s"]
+        rate = f"{e['median']:.3f} / {e['p90']:.3f} / {e['max']:.3f}"
+        lines.append(f"| {name} | {rate} | {r['attitude_error_deg_median']:.3f} | {r['non_finite']} |")
+    table = "\n".join(lines) + "\n"
+    print(table)
+    write_json("tracking_refilter_sweep.json", {"rows": rows})
+    (RESULTS / "tracking_refilter_sweep.md").write_text(table)
+
+
 REACH_BINS_DEG = (0, 2, 4, 6, 8, 10, 12, 15, 20, 30, 180)
 """Bins (°) of the true rotation keyframe → frame for `reach`."""
 
@@ -431,6 +514,8 @@ if __name__ == "__main__":
         registration_errors()
     elif sys.argv[1:2] == ["refilter"]:
         refilter(json.loads(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "options")
+    elif sys.argv[1:] == ["sweep"]:
+        sweep()
     elif sys.argv[1:2] == ["reach"]:
         reach(*(f(a) for f, a in zip((int, float, float), sys.argv[2:], strict=False)))
     elif sys.argv[1:2] == ["issue"]:
