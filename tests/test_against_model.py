@@ -82,6 +82,21 @@ def test_the_model_takes_out_the_chains_drift(tumble):
 
 
 @pytest.mark.slow
+def test_float32_clouds_register_against_the_model_in_the_sessions_precision(tumble):
+    """Under `jax_enable_x64` (the tests' setting) a float32 sequence registers against the
+    model with a float64 track as the float64 one does: it traces, and every registered frame
+    is as close to the truth."""
+    seq, clouds, chain, _ = tumble
+    single = jp.Cloud(jnp.asarray(clouds.points, jnp.float32), clouds.valid)
+    model = jp.track_against_model(single, chain, 0.2)
+    assert model.rate.dtype == jnp.float64
+    assert np.all(np.isfinite(np.asarray(model.attitude))) and np.all(np.isfinite(np.asarray(model.rate)))
+    R_true = jnp.einsum("tij,kj->tik", seq.rotations, seq.rotations[0])
+    kept = np.arange(R_true.shape[0]) != LOST
+    assert np.all(rotation_error_deg(model.rotations, R_true)[kept] < 0.02)
+
+
+@pytest.mark.slow
 def test_a_frame_away_from_the_model_is_not_a_registration(tumble):
     _, _, chain, model = tumble
     status = np.asarray(model.status)
