@@ -28,25 +28,23 @@ import numpy as np
 from _common import RESULTS, write_json
 
 import jaxpose as jp
+from jaxpose._uncertainty import nees
 from jaxpose.evaluation import realistic
 
 CHI2_3_95 = 7.81
 """The 95th percentile of χ²(3)."""
 
 
-def padded(clouds: list[jp.Cloud], rows: int) -> jp.Cloud:
-    """Clouds stacked along a new leading axis, each padded with invalid rows to `rows`."""
-    points = [jnp.pad(c.points, ((0, rows - c.points.shape[0]), (0, 0))) for c in clouds]
-    valid = [jnp.pad(c.valid, (0, rows - c.valid.shape[0])) for c in clouds]
-    return jp.Cloud(jnp.stack(points), jnp.stack(valid))
+def stacked(clouds: list[jp.Cloud]) -> jp.Cloud:
+    """Clouds of one camera (one row count) stacked along a new leading axis."""
+    return jax.tree.map(lambda *x: jnp.stack(x), *clouds)
 
 
 def rotation_nees(estimate_rotation, covariance, true_rotation) -> float:
-    """eᵀ Σ_rr⁻¹ e of the rotation error e = log(R̂ Rᵀ) (radians) against the covariance's
-    rotation block."""
-    error = np.asarray(jaxlie.SO3.from_matrix(np.asarray(estimate_rotation, float) @ true_rotation.T).log())
-    block = np.asarray(covariance, float)[:3, :3]
-    return float(error @ np.linalg.solve(block, error))
+    """`jaxpose._uncertainty.nees` of the rotation error e = log(R̂ Rᵀ) (radians) against the
+    covariance's rotation block."""
+    error = jaxlie.SO3.from_matrix(np.asarray(estimate_rotation, float) @ true_rotation.T).log()
+    return float(nees(error, np.asarray(covariance, float)[:3, :3]))
 
 
 def main():
@@ -55,8 +53,7 @@ def main():
     parser.add_argument("--pairs", type=int, default=3)
     args = parser.parse_args()
     cases = [c for c in realistic.make_cases(args.pairs, seed=args.seed) if c.sigma_cm > 0]
-    rows = max(max(c.prev.points.shape[0], c.curr.points.shape[0]) for c in cases)
-    prev, curr = padded([c.prev for c in cases], rows), padded([c.curr for c in cases], rows)
+    prev, curr = stacked([c.prev for c in cases]), stacked([c.curr for c in cases])
     est = jax.block_until_ready(jp.estimate_batch(prev, curr, key=jax.random.key(args.seed)))
     groups = collections.defaultdict(list)
     for i, case in enumerate(cases):

@@ -250,16 +250,21 @@ def registration_errors() -> None:
     (RESULTS / "tracking_registrations.md").write_text(table + "\n")
 
 
+def refiltered(tumbles: list[dict], rate_hz: float, options: dict, floor_deg: float = 0.0) -> list[dict]:
+    """`filter_errors` of each saved tumble's registrations (`chain_of_track`) filtered again
+    by `filter_keyframes(**options)`, with `floor_deg` added to every measurement's rotation
+    uncertainty (`with_rotation_floor`)."""
+    run = jax.jit(lambda chain: filter_keyframes(chain, 1 / rate_hz, **options))
+    return [filter_errors(run(with_rotation_floor(chain_of_track(t), floor_deg)), t["truth"], rate_hz) for t in tumbles]
+
+
 def refilter(options: dict, name: str) -> None:
     """The saved registrations of the last default run through `filter_keyframes(**options)`
     → `tracking_refilter_<name>.{json,md}`."""
     benchmark, tumbles = saved_tumbles()
     duration, rate_hz = benchmark["duration_s"], benchmark["rate_hz"]
-    run = jax.jit(lambda chain: filter_keyframes(chain, 1 / rate_hz, **options))
-    rows = []
-    for old, tumble in zip(benchmark["rows"], tumbles, strict=True):
-        result = run(chain_of_track(tumble))
-        rows.append({**old, **filter_errors(result, tumble["truth"], rate_hz), "filter_options": options})
+    errors = refiltered(tumbles, rate_hz, options)
+    rows = [{**old, **e, "filter_options": options} for old, e in zip(benchmark["rows"], errors, strict=True)]
     write(rows, len(rows), duration, rate_hz, f"tracking_refilter_{name}")
 
 
@@ -301,13 +306,7 @@ def sweep() -> None:
     rows = []
     for setting in SWEEP:
         options = {k: v for k, v in setting.items() if k != "floor_deg"}
-        run = jax.jit(lambda chain, options=options: filter_keyframes(chain, 1 / rate_hz, **options))
-        errors = [
-            filter_errors(
-                run(with_rotation_floor(chain_of_track(t), setting.get("floor_deg", 0.0))), t["truth"], rate_hz
-            )
-            for t in tumbles
-        ]
+        errors = refiltered(tumbles, rate_hz, options, setting.get("floor_deg", 0.0))
         rate = np.array([e["rate_error_deg_s"] for e in errors])
         attitude = np.array([e["attitude_error_deg"] for e in errors])
         rows.append(
