@@ -3,6 +3,7 @@ against brute force, the ToF sensor model, and the realistic benchmark's pairs."
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -226,6 +227,33 @@ def test_a_kept_benchmark_pair_is_the_same_pair_as_in_the_whole_set():
     np.testing.assert_array_equal(np.asarray(kept[0].curr.points), np.asarray(whole[3].curr.points))
     np.testing.assert_array_equal(kept[0].rotation, whole[3].rotation)
 
+
+def test_benchmark_draws_share_one_simulate_program_and_the_clouds_are_unchanged():
+    """`draw_pair` passes the camera's floats as arrays (`traced_camera`): pairs with other
+    dropouts and noise levels reuse one compiled `simulate` instead of compiling their own
+    (a float field is static to `eqx.filter_jit`), and the clouds are those of the float
+    camera."""
+    traces = []
+
+    def counted(*args):
+        traces.append(1)
+        return jp.simulate(*args)
+
+    sim = eqx.filter_jit(counted)
+    target = targets.n1()
+    near = realistic.nearest_distance(target)
+    drawn = [
+        realistic.draw_pair(sim, target, near, sigma, np.random.default_rng(i), 1.0, 15.0)
+        for i, sigma in enumerate((0.5, 1.0, 2.0))
+    ]
+    assert len(traces) == 1
+    camera = jp.Camera.camcube2(noise_sigma=0.01, noise_range_ref=realistic.RANGE_REF, dropout=0.2, flying=0.5)
+    R, t, key = jnp.eye(3), jnp.array([0.0, 0.0, 4.0]), jax.random.key(3)
+    as_floats = jp.simulate(camera, target, R, t, key)
+    as_arrays = jax.jit(jp.simulate)(realistic.traced_camera(camera), target, R, t, key)
+    np.testing.assert_array_equal(np.asarray(as_floats.valid), np.asarray(as_arrays.valid))
+    np.testing.assert_allclose(np.asarray(as_floats.points), np.asarray(as_arrays.points), atol=1e-12)
+    assert all(int(np.sum(np.asarray(d.prev.valid))) > 100 for d in drawn)
 
 def test_jit_users_size_a_config_from_the_camera_and_extent():
     config = jp.Config().sized_for(jp.Camera.camcube2(), extent=5.0)

@@ -31,13 +31,11 @@ import statistics
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import equinox as eqx
 import numpy as np
 
 from .._cloud import Cloud
 from ..sim import targets
-from ..sim._simulate import simulate
-from .realistic import Case, draw_pair, errors, nearest_distance, timed_align, warm_estimates
+from .realistic import SIMULATE, Case, draw_pair, errors, nearest_distance, timed_align, warm_estimates
 
 BINS = ((0.0, 30.0), (30.0, 60.0), (60.0, 90.0), (90.0, 135.0), (135.0, 180.0))
 """The rotation bins of the benchmark, degrees."""
@@ -93,7 +91,6 @@ def make_cases(
     draws rejected for too little shared surface. `keep(target, sigma_cm, bin)`: only those
     groups are drawn; each group draws from its own seeds (`seed`, target, level, bin, draw),
     so a kept pair is the same as in the whole set (its `index` counts the kept pairs only)."""
-    sim = eqx.filter_jit(simulate)
     cases, rejected = [], 0
     for ti, name in enumerate(names):
         target = getattr(targets, name)()
@@ -106,7 +103,7 @@ def make_cases(
                 while kept < pairs:
                     rng = np.random.default_rng([seed, ti, li, bi, draw])
                     draw += 1
-                    d = draw_pair(sim, target, near, sigma, rng, max(lo, 1.0), hi)
+                    d = draw_pair(SIMULATE, target, near, sigma, rng, max(lo, 1.0), hi)
                     prev, curr, R, t = d.prev, d.curr, d.rotation, d.translation
                     shared = shared_fraction(prev, curr, R, t)
                     if shared < MIN_OVERLAP:

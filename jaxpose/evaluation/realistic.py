@@ -52,6 +52,18 @@ FOUND_CM = 5.0
 
 RANGE_REF = 5.0
 
+SIMULATE = eqx.filter_jit(simulate)
+"""[`jaxpose.simulate`][], jitted once for every draw of this module and of
+`jaxpose.evaluation.capture` (with `traced_camera`, one program per camera size and target)."""
+
+
+def traced_camera(camera: Camera) -> Camera:
+    """The camera with its float fields as arrays. `eqx.filter_jit` takes a Python float as a
+    static argument, so each drawn dropout and noise level would compile `simulate` again
+    (≈ 1.5 s and thousands of memory mappings per pair on the 2-core CPU); as arrays they are
+    traced, and one program simulates every pair of a target. The clouds are the same."""
+    return jax.tree.map(jnp.asarray, camera)
+
 
 @dataclass(frozen=True)
 class Case:
@@ -123,11 +135,13 @@ def draw_pair(sim, target, near: float, sigma: float, rng: np.random.Generator, 
     shift = rng.normal(size=3)
     shift *= 0.05 * rng.uniform() ** (1 / 3) / np.linalg.norm(shift)
     R1, t1 = dR @ R0, t0 + shift
-    camera = Camera.camcube2(
-        noise_sigma=sigma / 100,
-        noise_range_ref=RANGE_REF,
-        dropout=float(rng.uniform(0.0, 0.3)),
-        flying=0.5 if sigma > 0 else 0.0,
+    camera = traced_camera(
+        Camera.camcube2(
+            noise_sigma=sigma / 100,
+            noise_range_ref=RANGE_REF,
+            dropout=float(rng.uniform(0.0, 0.3)),
+            flying=0.5 if sigma > 0 else 0.0,
+        )
     )
     keys = jax.random.split(jax.random.key(int(rng.integers(2**31))))
     prev = sim(camera, target, jnp.asarray(R0), jnp.asarray(t0), keys[0])
@@ -149,7 +163,6 @@ def make_cases(
     pair is drawn from its own seed (`seed`, target, level, index), so a kept pair is the same
     as in the whole set."""
     cases = []
-    sim = eqx.filter_jit(simulate)
     for ti, name in enumerate(names):
         target = getattr(targets, name)()
         near = nearest_distance(target)
@@ -157,7 +170,7 @@ def make_cases(
             for i in range(pairs):
                 if keep is not None and not keep(Case.label_of(name, sigma, i)):
                     continue
-                d = draw_pair(sim, target, near, sigma, np.random.default_rng([seed, ti, li, i]), 1.0, 15.0)
+                d = draw_pair(SIMULATE, target, near, sigma, np.random.default_rng([seed, ti, li, i]), 1.0, 15.0)
                 cases.append(Case(name, sigma, i, d.prev, d.curr, d.rotation, d.translation, math.degrees(d.angle)))
     return cases
 
