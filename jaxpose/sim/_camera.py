@@ -35,6 +35,11 @@ class Camera(eqx.Module):
       the neighbour's, as a ToF pixel that sees both surfaces does ("flying pixels").
 
     Noise and dropout act only when [`jaxpose.simulate`][] gets a `key`.
+
+    The float fields may be Python floats or arrays. `eqx.filter_jit` treats a Python float
+    as a static argument and compiles once per value: to simulate many cameras (other noise
+    levels, dropouts) with one program, pass `jax.tree.map(jnp.asarray, camera)`
+    (`jaxpose.evaluation.realistic.traced_camera`).
     """
 
     width: int = eqx.field(static=True)
