@@ -255,6 +255,7 @@ def test_benchmark_draws_share_one_simulate_program_and_the_clouds_are_unchanged
     np.testing.assert_allclose(np.asarray(as_floats.points), np.asarray(as_arrays.points), atol=1e-12)
     assert all(int(np.sum(np.asarray(d.prev.valid))) > 100 for d in drawn)
 
+
 def test_jit_users_size_a_config_from_the_camera_and_extent():
     config = jp.Config().sized_for(jp.Camera.camcube2(), extent=5.0)
     assert config.capacities.grid_cells >= (1 + 2 * 0.2) * 5.0 / 0.026
