@@ -60,7 +60,7 @@ SIMULATE = eqx.filter_jit(simulate)
 def traced_camera(camera: Camera) -> Camera:
     """The camera with its float fields as arrays. `eqx.filter_jit` takes a Python float as a
     static argument, so each drawn dropout and noise level would compile `simulate` again
-    (≈ 1.5 s and thousands of memory mappings per pair on the 2-core CPU); as arrays they are
+    (≈ 0.8 s and thousands of memory mappings per pair on the 2-core CPU); as arrays they are
     traced, and one program simulates every pair of a target. The clouds are the same."""
     return jax.tree.map(jnp.asarray, camera)
 
