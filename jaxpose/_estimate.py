@@ -16,7 +16,7 @@ from ._capture import capture_search
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
-from ._fine import FineResult, exact_surface, fine_refine, without_range_noise
+from ._fine import FineResult, RotationHold, exact_surface, fine_refine, rotation_hold, without_range_noise
 from ._frame import PlaneFrame
 from ._objective import hard_score, soft_score
 from ._poses import motion_from_displacement, preceded_by_turn
@@ -51,7 +51,8 @@ class Status(eqx.Enumeration):
     uncertain = (
         "the fit's rotation uncertainty (the largest standard deviation of Estimate.covariance, combined with half "
         "Estimate.spread, the angle to another equally good fit) exceeds Thresholds.max_rotation_std_deg: the "
-        "clouds do not pin the motion down to the 1° a success promises"
+        "clouds do not pin the motion down to the 1° a success promises; or the matched faces barely hold a turn "
+        "(Estimate.hold.lever below Thresholds.min_rotation_lever; Estimate.hold.axis is its axis, camera frame)"
     )
 
 
@@ -145,6 +146,12 @@ class Estimate(eqx.Module):
       fractions within `FINE_TIE`; `jaxpose._estimate.fit_spread`): two minima of the fine
       objective that the data do not tell apart. 0 where there is none, where the fine
       stage's result was not kept, and with the capture stage.
+    - `hold`: how firmly the matched faces hold the rotation
+      ([`RotationHold`][jaxpose._fine.RotationHold]: the `lever` in metres of the turn they
+      hold least, and that turn's `axis` in the camera frame), or None without a fine stage.
+      A lever below `Thresholds.min_rotation_lever` makes the result `Status.uncertain`: the
+      views do not fix the turn about `axis` (a single flat face seen head-on, about its
+      normal).
     - `hypotheses`: the distinct motions found, best first ([`Hypotheses`][jaxpose.Hypotheses]):
       with the capture stage (`Config.so3`) its `RotationSearch.hypotheses`; otherwise the
       chosen fit and the alternative (or the estimate alone without a fine stage).
@@ -166,6 +173,7 @@ class Estimate(eqx.Module):
     hypotheses: Hypotheses
     covariance: Float[Array, "6 6"] | None
     spread: Float[Array, ""]
+    hold: RotationHold | None = None
 
     @property
     def status(self) -> Int[Array, "*batch"]:
@@ -537,15 +545,23 @@ def is_uncertain(
     return ~(jnp.degrees(std) <= config.thresholds.max_rotation_std_deg)
 
 
+def held_rotation(problem: Problem, config: Config, p: Float[Array, "6"]) -> RotationHold:
+    """[`rotation_hold`][jaxpose._fine.rotation_hold] of a fit p (frame n), its axis turned into
+    the camera frame c (the frame of `Estimate.rotation`'s rotation vector)."""
+    hold = rotation_hold(problem, config, p)
+    return RotationHold(hold.lever, problem.frame.axes @ hold.axis)
+
+
 def _finish(
     problem, config, glob, loc, p, converged, hard, fine, fine_kept, ambiguous, alternative, candidates, spread
 ) -> Estimate:
     """The status (first matching condition of a fixed priority) and the estimate's fields."""
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
-    covariance, uncertain = None, jnp.asarray(False)
+    covariance, uncertain, hold = None, jnp.asarray(False), None
     if fine is not None:
         covariance = motion_covariance(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
-        uncertain = is_uncertain(covariance, config, spread)
+        hold = held_rotation(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
+        uncertain = is_uncertain(covariance, config, spread) | (hold.lever < config.thresholds.min_rotation_lever)
     conditions = [
         (problem.status != 0, Status.degenerate),
         (~finite, Status.non_finite),
@@ -579,6 +595,7 @@ def _finish(
         hypotheses=hypotheses_of(problem.frame, params.at[0].set(p), score, distinct),
         covariance=covariance,
         spread=jnp.where(finite, spread, 0.0),
+        hold=hold,
     )
 
 
