@@ -40,6 +40,7 @@ from ._estimate import Hypotheses as Hypotheses
 from ._estimate import Status as Status
 from ._estimate import estimate as estimate
 from ._estimate_batch import estimate_batch as estimate_batch
+from ._fine import RotationHold as RotationHold
 from ._frame import PlaneFrame as PlaneFrame
 from ._frame import plane_frame as plane_frame
 from ._io import load_cloud as load_cloud
@@ -93,6 +94,7 @@ __all__ = [
     "Thresholds",
     "Estimate",
     "Hypotheses",
+    "RotationHold",
     "PlaneFrame",
     "Problem",
     "Track",

@@ -409,12 +409,11 @@ class Thresholds(eqx.Module):
       show that it is. `inf` turns the check off. Needs a fine stage (the covariance is its
       least squares').
     - `min_rotation_lever`: a result whose matched faces hold some turn by less than this
-      lever (metres; `Estimate.hold`, [`rotation_hold`][jaxpose._fine.rotation_hold]) is
+      lever (metres; `Estimate.hold`, `jaxpose._fine.rotation_hold`) is
       reported `Status.uncertain`, and `Estimate.hold.axis` names the turn. A single flat
       face seen head-on leaves the turn about its normal to the view's outline; the fit ends
-      wherever its start left it (a noise-free N1 face: 0.4–4° off depending on the search's
-      key) while its covariance, scaled by residuals of round-off, promises hundredths of a
-      degree. On 336 realistic pairs (draws 2 and 3, every target and noise level) four
+      wherever its start left it while its covariance, scaled by residuals of round-off,
+      promises hundredths of a degree. On 336 realistic pairs (draws 2 and 3, every target and noise level) four
       noise-free views had levers below 0.2 cm and ended 0.4–3° off (one reported a success
       2° off); every other view's lever was 1.06 cm or more (docs, Estimating). 0 turns the
       check off. Needs a fine stage.

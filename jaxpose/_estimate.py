@@ -147,7 +147,7 @@ class Estimate(eqx.Module):
       objective that the data do not tell apart. 0 where there is none, where the fine
       stage's result was not kept, and with the capture stage.
     - `hold`: how firmly the matched faces hold the rotation
-      ([`RotationHold`][jaxpose._fine.RotationHold]: the `lever` in metres of the turn they
+      ([`RotationHold`][jaxpose.RotationHold]: the `lever` in metres of the turn they
       hold least, and that turn's `axis` in the camera frame), or None without a fine stage.
       A lever below `Thresholds.min_rotation_lever` makes the result `Status.uncertain`: the
       views do not fix the turn about `axis` (a single flat face seen head-on, about its
