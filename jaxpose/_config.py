@@ -413,10 +413,12 @@ class Thresholds(eqx.Module):
       reported `Status.uncertain`, and `Estimate.hold.axis` names the turn. A single flat
       face seen head-on leaves the turn about its normal to the view's outline; the fit ends
       wherever its start left it while its covariance, scaled by residuals of round-off,
-      promises hundredths of a degree. On 336 realistic pairs (draws 2 and 3, every target and noise level) four
-      noise-free views had levers below 0.2 cm and ended 0.4–3° off (one reported a success
-      2° off); every other view's lever was 1.06 cm or more (docs, Estimating). 0 turns the
-      check off. Needs a fine stage.
+      promises hundredths of a degree. On 336 realistic pairs (draws 2 and 3, every target
+      and noise level; `experiments/rotation_hold.py`) four noise-free views had levers below
+      0.2 cm and ended 0.4–3° off (one of them a success 2° off without the check); every
+      other view's lever was 1.06 cm or more (docs, Estimating). 0 turns the check off. The
+      tracker's registrations run without it (`jaxpose.tracking._track.registration_config`).
+      Needs a fine stage.
     """
 
     min_score: Scalar = 0.7

@@ -107,3 +107,15 @@ def test_a_corner_view_is_held_and_found():
 def test_the_threshold_is_checked(value):
     with pytest.raises(ValueError, match="min_rotation_lever"):
         jp.Thresholds(min_rotation_lever=value)
+
+
+def test_the_tracker_registers_without_the_lever_check():
+    """`chain_estimates` judges an unheld turn by motion continuity: its registrations' config
+    has the check off and is otherwise the caller's."""
+    from jaxpose.tracking._track import registration_config
+
+    config = jp.Config(thresholds=jp.Thresholds(min_score=0.6))
+    inner = registration_config(config)
+    assert inner.thresholds.min_rotation_lever == 0.0
+    assert inner.thresholds.min_score == 0.6
+    assert inner.fine == config.fine
