@@ -570,7 +570,7 @@ def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Arra
 
 
 class RotationHold(NamedTuple):
-    """How firmly the matched faces hold the rotation of a fit ([`rotation_hold`][]).
+    """How firmly the matched faces hold the rotation of a fit (`jaxpose._fine.rotation_hold`).
 
     - `lever`: metres, the root mean square distance along their planes' normals that the
       current points matched to faces move per radian of the weakest turn, with the
