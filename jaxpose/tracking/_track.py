@@ -662,7 +662,7 @@ def registration_config(config: Config) -> Config:
     = 0. A pair whose matched faces barely hold a turn (`Estimate.hold`) is `Status.uncertain`
     on its own, and the tracker accepts an uncertain registration only where it agrees with
     the prediction. On the tracking benchmark's noise-free grazing fragment (tumble 4: a bent
-    panel, nearly one face) most registrations have such a turn; with the check, 12 of its 251
+    panel, nearly one face) its registrations often have such a turn; with the check, 12 of its 251
     frames registered and the track was lost (rate error 13.8 °/s at 10 s), without it 198
     (0.24 °/s), the other 19 tumbles the same either way (docs, Tracking). Those
     registrations still go to the filter with their least-squares covariance, which does not
