@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 
 import jaxpose as jp
@@ -55,3 +56,9 @@ def write_json(name: str, payload: dict) -> Path:
     path.write_text(json.dumps({"machine": machine(), **payload}, indent=2))
     print(f"wrote {path}")
     return path
+
+
+def stacked(clouds: list[jp.Cloud]) -> jp.Cloud:
+    """Clouds of one camera (one row count) stacked along a new leading axis, for
+    `jp.estimate_batch`."""
+    return jax.tree.map(lambda *x: jnp.stack(x), *clouds)

@@ -36,7 +36,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
-from _common import RESULTS, write_json
+from _common import RESULTS, stacked, write_json
 
 import jaxpose as jp
 from jaxpose._estimate import STATUS_NAME, is_uncertain
@@ -48,11 +48,6 @@ CHI2_3_95 = 7.81
 
 CHI2_3_MEDIAN = 2.366
 """The median of χ²(3)."""
-
-
-def stacked(clouds: list[jp.Cloud]) -> jp.Cloud:
-    """Clouds of one camera (one row count) stacked along a new leading axis."""
-    return jax.tree.map(lambda *x: jnp.stack(x), *clouds)
 
 
 def rotation_error(estimate_rotation, true_rotation) -> np.ndarray:

@@ -18,8 +18,7 @@ from __future__ import annotations
 import argparse
 
 import jax
-import jax.numpy as jnp
-from _common import RESULTS, write_json
+from _common import RESULTS, stacked, write_json
 
 import jaxpose as jp
 from jaxpose._estimate import STATUS_NAME
@@ -28,11 +27,6 @@ from jaxpose.evaluation import realistic
 LEVELS_CM = (0.0, 0.5, 1.0, 2.0)
 LISTED_CM = 1.0
 """Pairs with a lever below this (centimetres) are listed one by one."""
-
-
-def stacked(clouds: list[jp.Cloud]) -> jp.Cloud:
-    """Clouds of one camera stacked along a new leading axis."""
-    return jax.tree.map(lambda *x: jnp.stack(x), *clouds)
 
 
 def draw_rows(seed: int, pairs: int) -> list[dict]:
