@@ -680,9 +680,9 @@ def registration_config(config: Config) -> Config:
     - The one-way fit: the tracking benchmark run with the two-way fit and 0.82, the
       single-pair defaults, lost tumble 4 (56 of 251 frames registered, 1.99 °/s) and was
       worse on 6 of the other 10 tumbles it reached before it was stopped, better on 2 (docs,
-      Tracking), so the tracker keeps the fit its committed table measured. An explicit
-      `symmetric` (True or False) is the caller's choice and is kept, with the caller's
-      ratio."""
+      Tracking), so
+      the tracker keeps the fit its committed table measured. An explicit `symmetric` (True
+      or False) is the caller's choice and is kept, with the caller's ratio."""
     config = eqx.tree_at(lambda c: c.thresholds.min_rotation_lever, config, 0.0)
     if config.fine is None or config.fine.symmetric is not None:
         return config
