@@ -288,10 +288,7 @@ class FineStage(eqx.Module):
       On the realistic benchmark's noisy upper stages both fits from the refine and from rest
       ended in the same wrong turn about the long axis, 14.5° off, with as many inliers as
       the truth's fit, and were reported as successes (docs, Findings: turns about a
-      near-symmetry axis). 0.82: range noise moves the moments, and at 0.85 a 2 cm upper
-      stage whose two largest moments were 0.8465 apart got no turned runs and was reported
-      a success 14.2° off; the smallest ratio of 128 upper-stage views (four draws of the
-      benchmark) was 0.843 (docs, Findings: two-way residuals, the default).
+      near-symmetry axis).
     - `points`: capacity of the current side, and of the previous side unless `prev_points`
       says otherwise (static); more points are thinned evenly.
     - `prev_points`: capacity of the previous side (static); None (the default): `points`.
@@ -326,22 +323,19 @@ class FineStage(eqx.Module):
       and the median centroid error at 1 and 2 cm, but found two pairs fewer at 2 cm on one
       draw, was mixed at 0.5 cm, and the neighbour search over the current cloud made the
       median call 26–100 ms longer (docs, Findings: a smoothed current side).
-    - `symmetric`: two-way residuals (static): each round also matches
-      `_fine.BACK_POINTS` previous points that have a plane (thinned evenly) to their nearest
-      current points and adds their distances to those points' planes, fitted to the current
-      cloud (`Problem.fine_back`, built once in [`jaxpose.Problem.build`][]), beside the
-      current points' distances to the previous planes. True needs the whole surface on both
-      sides (`prev_slab` = `curr_slab` = inf); None (the default) means two-way exactly there
-      (`FineStage.two_way`), one-way near the cutting planes. Fitted from the true motion, the
-      one-way fit's minimum lies several of its own standard deviations from the truth under
-      range noise, farther as the noise grows (most on the faceted mesh debris); fitted both
-      ways it lies nearer. The noise-free polish stays one-way (its planes through the points
-      are exact). On the realistic benchmark's seed 0 and two more draws it cut the median
-      rotation error at σ 0.5–2 cm, and each call takes 1.3–1.5 times as long (docs,
-      Findings: two-way residuals, the default). Where `symmetric` is None the tracker's
-      registrations (`jaxpose.tracking._track.registration_config`) and the registrations
-      against a model (`jaxpose.tracking._against_model.model_config`) fit one way: the
-      tracking benchmark ran worse with two-way fits, and the model was not measured with them.
+    - `symmetric`: two-way residuals (static; needs `prev_slab` and `curr_slab` inf): each
+      round also matches `_fine.BACK_POINTS` previous points that have a plane (thinned
+      evenly) to their nearest current points and adds their distances to those points'
+      planes, fitted to the current cloud (`Problem.fine_back`, built once in
+      [`jaxpose.Problem.build`][]), beside the current points' distances to the previous
+      planes. Fitted from the true motion, the one-way
+      fit's minimum lies several of its own standard deviations from the truth under range
+      noise, farther as the noise grows (most on the faceted mesh debris); fitted both
+      ways it lies nearer. The noise-free polish stays one-way (its planes through the
+      points are exact). Off by default: on the realistic benchmark's 224 pairs it cut the
+      median rotation error at σ 0.5–2 cm and the median centroid error at 1 cm, and each
+      call took 1.1–1.25 times as long, but it added a false success at 2 cm (docs,
+      Findings: two-way residuals).
     - `rounds`: most match-then-solve rounds (static).
     - `steps`, `tol`: Gauss–Newton's step limit per round and its rtol = atol, in units
       of 1° and 1 cm (static). At 1e-4, on the paper's pairs × 3 keys every result is within
@@ -356,33 +350,23 @@ class FineStage(eqx.Module):
     guard: Scalar = 0.05
     from_rest: bool = eqx.field(static=True, default=True)
     turn_deg: float = eqx.field(static=True, default=15.0)
-    symmetry_ratio: Scalar = 0.82
+    symmetry_ratio: Scalar = 0.85
     points: int = eqx.field(static=True, default=4096)
     prev_points: int | None = eqx.field(static=True, default=None)
     neighbours: int = eqx.field(static=True, default=20)
     anchor: Literal["point", "centroid", "hybrid"] = eqx.field(static=True, default="hybrid")
     smooth_current: bool = eqx.field(static=True, default=False)
-    symmetric: bool | None = eqx.field(static=True, default=None)
+    symmetric: bool = eqx.field(static=True, default=False)
     rounds: int = eqx.field(static=True, default=20)
     steps: int = eqx.field(static=True, default=20)
     tol: float = eqx.field(static=True, default=1e-4)
-
-    @property
-    def _whole_surface(self) -> bool:
-        return not (math.isfinite(self.curr_slab) or math.isfinite(self.prev_slab))
-
-    @property
-    def two_way(self) -> bool:
-        """Whether the fit is two-way: `symmetric`, or, where `symmetric` is None (the
-        default), whether both sides are the whole surface (`prev_slab` = `curr_slab` = inf)."""
-        return self._whole_surface if self.symmetric is None else self.symmetric
 
     def __check_init__(self):
         if self.anchor not in ("centroid", "point", "hybrid"):
             raise ValueError(f"FineStage.anchor must be 'hybrid', 'centroid' or 'point', got {self.anchor!r}.")
         if min(self.points, self.neighbours - 2, self.steps, self.rounds) < 1 or not self.tol > 0:
             raise ValueError("FineStage needs points ≥ 1, neighbours ≥ 3, steps ≥ 1, rounds ≥ 1 and tol > 0.")
-        if self.symmetric is True and not self._whole_surface:
+        if self.symmetric and (math.isfinite(self.curr_slab) or math.isfinite(self.prev_slab)):
             raise ValueError(
                 "FineStage.symmetric needs the whole surface on both sides (prev_slab = curr_slab = inf): each side's "
                 "points are matched against the other side's planes."
@@ -678,12 +662,10 @@ class Config(eqx.Module):
         fine stage from the best hypothesis. `Estimate.hypotheses` holds the distinct
         hypotheses, best first; `Estimate.ambiguous` says that another one explains the clouds
         as well (a symmetric target). Up to 30 BFGS steps per mode. The fine stage keeps
-        `planar_fraction` 0.7, planes through the centroids (`anchor` "centroid"), one-way
-        residuals (`symmetric` False) and `symmetry_ratio` 0.85, as when the capture benchmark
-        was measured: with every plane, noise-free N5 lost one of its four equivalent motions
-        from the hypotheses (`tests/test_capture.py`); the two-way fit and the lower ratio of
-        the default have not been measured on the capture set."""
-        fine = FineStage(planar_fraction=0.7, anchor="centroid", symmetric=False, symmetry_ratio=0.85)
+        `planar_fraction` 0.7 and planes through the centroids (`anchor` "centroid"), as when
+        the capture benchmark was measured: with every plane, noise-free N5 lost one of its
+        four equivalent motions from the hypotheses (`tests/test_capture.py`)."""
+        fine = FineStage(planar_fraction=0.7, anchor="centroid")
         base = {"so3": RotationSearch(), "refine": Refine(max_steps=30), "fine": fine}
         return cls(**{**base, **changes})
 

@@ -24,10 +24,10 @@ points near the cutting planes:
   across edges and corners through a (where the centroid lies inside the body).
   Points farther than `FineStage.inlier` from every previous point (surface seen only in one
   cloud) get weight 0.
-- two-way (`FineStage.two_way`: by default wherever both sides are the whole surface):
-  previous points (`BACK_POINTS`, thinned evenly) are also matched to their nearest
-  current points, and their distances to those points' planes, fitted to the current
-  cloud (`back_side`), join the residuals (`back_residuals`).
+- two-way (`FineStage.symmetric`, off by default): previous points (`BACK_POINTS`, thinned
+  evenly) are also matched to their nearest current points, and their distances to those
+  points' planes, fitted to the current cloud (`back_side`), join the residuals
+  (`back_residuals`).
 
 This is point-to-plane ICP (Chen & Medioni 1992) on the selected points:
 rounds of nearest-neighbour matching (a voxel search, or, while the points have moved
@@ -139,7 +139,7 @@ class SurfaceProblem(Protocol):
     - `curr`, `curr_valid`: the current points (frame n, `(3, M)`) and their mask.
     - `fine_curr`: the smoothed current side (`CurrentSide`) or None.
     - `fine_back`: the current points with their planes (`FineCloud`, frame n), for two-way
-      residuals (`FineStage.two_way`), or None.
+      residuals (`FineStage.symmetric`), or None.
     - `d`, `planes`: the cell size (m) and the cutting planes, for the slabs.
     """
 
@@ -364,9 +364,9 @@ def current_side(curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Co
 
 def back_side(curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Config, planes, d) -> FineCloud | None:
     """The current points (frame n, SoA, metres) with their planes, as [`fine_cloud`][] builds
-    the previous side's, for the two-way residuals (`FineStage.two_way`); None where the
+    the previous side's, for the two-way residuals of `FineStage.symmetric`; None where the
     config does not ask for them."""
-    if config.fine is None or not config.fine.two_way:
+    if config.fine is None or not config.fine.symmetric:
         return None
     return fine_cloud(curr.T, valid, config, planes, d)
 
@@ -653,7 +653,7 @@ def back_points(fine: FineCloud) -> tuple[Float[Array, "3 B"], Bool[Array, " B"]
 
 
 def back_residuals(back: FineCloud, points: Float[Array, "3 B"], live, p: Float[Array, "6"], inlier):
-    """The two-way half of a round (`FineStage.two_way`): the previous points `points`
+    """The two-way half of a round (`FineStage.symmetric`): the previous points `points`
     (frame ν ≈ the previous cloud's frame n; [`back_points`][]) where `live`, each moved into
     frame n of the current cloud at p (`out_of_moved_frame`), are matched to their nearest
     current points (`back`, the voxel search every round); the matches within `inlier`
@@ -701,7 +701,7 @@ def fine_refine(
     (a boolean, possibly traced): fit the smoothed current points where the problem has them
     ([`CurrentSide`][]), else the raw ones (the noise-free polish). `two_way` (a boolean,
     possibly traced): where the problem holds the current side's planes (`fine_back`,
-    `FineStage.two_way`), also fit the previous points to them ([`back_residuals`][]).
+    `FineStage.symmetric`), also fit the previous points to them ([`back_residuals`][]).
     """
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)

@@ -76,7 +76,7 @@ class Problem(eqx.Module):
     - `fine_curr`: the fine stage's current side, with its face-like points smoothed
       (`CurrentSide`), or None where `FineStage.smooth_current` is false (or no fine stage).
     - `fine_back`: the current points with their planes (`FineCloud`, frame n), which the
-      previous points are matched against where `FineStage.two_way`; None elsewhere.
+      previous points are matched against where `FineStage.symmetric`; None elsewhere.
     """
 
     frame: PlaneFrame

@@ -132,13 +132,3 @@ def test_track_against_model_checks_its_input(sequence):
         jp.track_against_model(clouds, chain, 0.2, voxel=-1.0)
     with pytest.raises(ValueError, match="fine stage"):
         jp.track_against_model(clouds, chain, 0.2, config=jp.Config(fine=None))
-
-
-def test_registrations_against_the_model_fit_one_way_unless_the_caller_chooses():
-    """`model_config` keeps the one-way fit that `results/model_tracking.*` measured where the
-    fine stage leaves `symmetric` to its default, and an explicit choice otherwise."""
-    assert jp.Config().fine.two_way
-    assert not model_config(jp.Config()).fine.two_way
-    assert model_config(jp.Config(fine=jp.FineStage(symmetric=True))).fine.two_way
-    with pytest.raises(ValueError, match="needs the fine stage"):
-        model_config(jp.Config.paper())

@@ -214,20 +214,16 @@ def test_out_of_moved_frame_inverts_the_move_into_it(angles, shift, seed):
     np.testing.assert_allclose(np.asarray(out_of_moved_frame(p, _moved(p, b))), np.asarray(b), atol=1e-12)
 
 
-def test_two_way_residuals_need_the_whole_surface_and_are_on_by_default_where_they_have_it():
+def test_two_way_residuals_need_the_whole_surface_and_are_off_by_default():
     with pytest.raises(ValueError, match="prev_slab = curr_slab = inf"):
         jp.FineStage(prev_slab=3.0, symmetric=True)
     with pytest.raises(ValueError, match="prev_slab = curr_slab = inf"):
         jp.FineStage(curr_slab=2.0, symmetric=True)
-    assert jp.FineStage().two_way and not jp.FineStage(symmetric=False).two_way
-    assert not jp.FineStage(prev_slab=3.0).two_way and not jp.FineStage(curr_slab=2.0).two_way
-    assert not jp.Config.fast().fine.two_way and jp.Config().fine.two_way
     pts = jnp.asarray(_ridge(1.0).T)
     cloud = jp.Cloud.from_points(pts.T + jnp.array([[0.0, 0.0, 5.0]]))
     config = jp.Config(capacities=jp.Capacities(max_points=4096))
-    one_way = dataclasses.replace(config, fine=jp.FineStage(symmetric=False))
-    assert jp.Problem.build(cloud, cloud, one_way).fine_back is None
-    back = jp.Problem.build(cloud, cloud, config).fine_back
+    assert jp.Problem.build(cloud, cloud, config).fine_back is None
+    back = jp.Problem.build(cloud, cloud, dataclasses.replace(config, fine=jp.FineStage(symmetric=True))).fine_back
     # The current side's planes are built as the previous side's: the same cloud, the same planes.
     same = jp.Problem.build(cloud, cloud, config).fine
     np.testing.assert_array_equal(np.asarray(back.valid), np.asarray(same.valid))
@@ -238,7 +234,7 @@ def test_two_way_fits_recover_a_noise_free_motion_and_switch_off_to_the_one_way_
     """From a start 2° off on the paper's noise-free N5 pair, the two-way fit ends at the
     truth as the one-way fit does; with `two_way` false it is the one-way fit, step for step."""
     prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
-    one = dataclasses.replace(WHOLE_CLOUD, fine=dataclasses.replace(WHOLE_CLOUD.fine, symmetric=False))
+    one = WHOLE_CLOUD
     two = dataclasses.replace(one, fine=dataclasses.replace(one.fine, symmetric=True))
     truth = None
     results = {}
@@ -342,9 +338,7 @@ def test_graph_matching_rounds_give_the_voxel_search_fit(monkeypatch, target, si
     ends where a fit whose every round searches the voxels ends (`GRAPH_SHIFT` = 0: only a
     round where no point moved descends, and finds the same nearest), from rest on a
     realistic-benchmark pair (σ in cm): noise-free the same fit; with noise within the noise
-    floor's spread, with fewer searches. The default fit is two-way: its back half
-    (`BACK_POINTS` previous points against the current side) searches the voxels every round
-    in both fits; only the forward half's searches are counted."""
+    floor's spread, with fewer searches."""
     from jaxpose import _fine
     from jaxpose.evaluation import realistic
 

@@ -1,8 +1,6 @@
 """How firmly a fit's matched surfaces hold its rotation (`jaxpose._fine.rotation_hold`) and the
 status it sets (`Thresholds.min_rotation_lever`)."""
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -111,20 +109,13 @@ def test_the_threshold_is_checked(value):
         jp.Thresholds(min_rotation_lever=value)
 
 
-def test_the_tracker_registers_without_the_lever_check_and_one_way_by_default():
+def test_the_tracker_registers_without_the_lever_check():
     """`chain_estimates` judges an unheld turn by motion continuity: its registrations' config
-    has the check off; with the default fine stage it fits one way with the tracking ratio
-    (`TRACKING_SYMMETRY_RATIO`), and an explicit choice of the caller's is kept."""
-    from jaxpose.tracking._track import TRACKING_SYMMETRY_RATIO, registration_config
+    has the check off and is otherwise the caller's."""
+    from jaxpose.tracking._track import registration_config
 
     config = jp.Config(thresholds=jp.Thresholds(min_score=0.6))
     inner = registration_config(config)
     assert inner.thresholds.min_rotation_lever == 0.0
     assert inner.thresholds.min_score == 0.6
-    assert config.fine.two_way and not inner.fine.two_way
-    assert inner.fine.symmetry_ratio == TRACKING_SYMMETRY_RATIO
-    assert dataclasses.replace(inner.fine, symmetric=None, symmetry_ratio=config.fine.symmetry_ratio) == config.fine
-    for symmetric in (True, False):
-        chosen = jp.Config(fine=jp.FineStage(symmetric=symmetric, symmetry_ratio=0.8))
-        assert registration_config(chosen).fine == chosen.fine
-    assert registration_config(jp.Config.paper()).fine is None
+    assert inner.fine == config.fine

@@ -108,16 +108,10 @@ class FrameRegistration(eqx.Module):
 
 
 def model_config(config: Config, model_points: int = MODEL_POINTS) -> Config:
-    """`config` with the fine stage's previous side set to `model_points` points (static), and
-    one-way residuals where the fine stage leaves `FineStage.symmetric` to its default (None):
-    `results/model_tracking.*` measured the one-way fit against the model, and the two-way
-    fit, the single-pair default, has not been measured there. An explicit `symmetric` is
-    kept."""
+    """`config` with the fine stage's previous side set to `model_points` points (static)."""
     if config.fine is None:
         raise ValueError("registration against the model needs the fine stage (Config.fine is None).")
-    symmetric = False if config.fine.symmetric is None else config.fine.symmetric
-    fine = dataclasses.replace(config.fine, prev_points=model_points, symmetric=symmetric)
-    return dataclasses.replace(config, fine=fine)
+    return dataclasses.replace(config, fine=dataclasses.replace(config.fine, prev_points=model_points))
 
 
 @eqx.filter_jit

@@ -40,8 +40,6 @@ measurements with a fixed noise; simpler, and 0.045–0.073 °/s on the same reg
 
 from __future__ import annotations
 
-import dataclasses
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -659,35 +657,17 @@ def motion_reached(p: Float[Array, "6"], config: Config, keyframe_reach: float |
     return jnp.any(jnp.abs(p) >= keyframe_reach * box_scale(config).astype(p.dtype))
 
 
-TRACKING_SYMMETRY_RATIO = 0.85
-"""`FineStage.symmetry_ratio` of the tracker's registrations where the caller's fine stage
-leaves `symmetric` to its default ([`registration_config`][])."""
-
-
 def registration_config(config: Config) -> Config:
     """The config of the tracker's registrations: `config` with `Thresholds.min_rotation_lever`
-    = 0, and, where its fine stage leaves `FineStage.symmetric` to its default (None), the
-    one-way fit with `symmetry_ratio` = `TRACKING_SYMMETRY_RATIO`.
-
-    - The lever check: a pair whose matched faces barely hold a turn (`Estimate.hold`) is
-      `Status.uncertain` on its own, and the tracker accepts an uncertain registration only
-      where it agrees with the prediction. On the tracking benchmark's noise-free grazing
-      fragment (tumble 4: a bent panel, nearly one face) its registrations often have such a
-      turn; with the check, 12 of its 251 frames registered and the track was lost (rate
-      error 13.8 °/s at 10 s), without it 198 (0.24 °/s), the other 19 tumbles the same either
-      way (docs, Tracking). Those registrations still go to the filter with their
-      least-squares covariance, which does not widen along the free turn.
-    - The one-way fit: the tracking benchmark run with the two-way fit and 0.82, the
-      single-pair defaults, lost tumble 4 (56 of 251 frames registered, 1.99 °/s) and was
-      worse on 6 of the other 10 tumbles it reached before it was stopped, better on 2 (docs,
-      Tracking), so
-      the tracker keeps the fit its committed table measured. An explicit `symmetric` (True
-      or False) is the caller's choice and is kept, with the caller's ratio."""
-    config = eqx.tree_at(lambda c: c.thresholds.min_rotation_lever, config, 0.0)
-    if config.fine is None or config.fine.symmetric is not None:
-        return config
-    fine = dataclasses.replace(config.fine, symmetric=False, symmetry_ratio=TRACKING_SYMMETRY_RATIO)
-    return dataclasses.replace(config, fine=fine)
+    = 0. A pair whose matched faces barely hold a turn (`Estimate.hold`) is `Status.uncertain`
+    on its own, and the tracker accepts an uncertain registration only where it agrees with
+    the prediction. On the tracking benchmark's noise-free grazing fragment (tumble 4: a bent
+    panel, nearly one face) its registrations often have such a turn; with the check, 12 of its 251
+    frames registered and the track was lost (rate error 13.8 °/s at 10 s), without it 198
+    (0.24 °/s), the other 19 tumbles the same either way (docs, Tracking). Those
+    registrations still go to the filter with their least-squares covariance, which does not
+    widen along the free turn."""
+    return eqx.tree_at(lambda c: c.thresholds.min_rotation_lever, config, 0.0)
 
 
 def chain_estimates(
@@ -722,8 +702,7 @@ def chain_estimates(
     (`Chain.continuity`).
 
     The registrations run with `Thresholds.min_rotation_lever` = 0 ([`registration_config`][]):
-    continuity, not the single pair, judges a turn the faces leave to the outline; with the
-    default fine stage they are one-way fits (the same function).
+    continuity, not the single pair, judges a turn the faces leave to the outline.
 
     Pure and jittable (`lax.scan` over frames).
     """
