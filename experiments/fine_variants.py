@@ -15,10 +15,10 @@ draws other pairs than the benchmark's (seed 0). `--set density`: the previous s
 dense previous side). `--set current`: the current points raw (the default) or smoothed onto
 their neighbourhood's plane, on faces or everywhere (`FineStage.smooth_current`,
 `_fine.SMOOTHED_FRACTION`; docs, Findings: a smoothed current side). `--set symmetric`:
-one-way residuals (the default) or two-way (`FineStage.symmetric`; docs, Findings: two-way
-residuals). `--from-truth` runs the fine stage alone from each pair's true motion
-(`fine_refine`), so that the errors are those of the fine objective's own minimum; its
-"success" then counts the converged fits.
+one-way residuals (the default) or two-way (`FineStage.symmetric`), each against the thinned
+previous side or every previous point (docs, Findings: two-way residuals). `--from-truth`
+runs the fine stage alone from each pair's true motion (`fine_refine`), so that the errors
+are those of the fine objective's own minimum; its "success" then counts the converged fits.
 `--only TEXT` runs only the variants whose name contains TEXT.
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
@@ -221,6 +221,16 @@ def main():
             (
                 "FineStage(symmetric=True): two-way residuals",
                 dataclasses.replace(default, fine=fine_with(default, "symmetric", True)),
+                {},
+            ),
+            (
+                "FineStage(prev_points=2**20): every previous point, one-way",
+                dataclasses.replace(default, fine=fine_with(default, "prev_points", 2**20)),
+                {},
+            ),
+            (
+                "FineStage(symmetric=True, prev_points=2**20): two-way against every previous point",
+                dataclasses.replace(default, fine=dataclasses.replace(default.fine, symmetric=True, prev_points=2**20)),
                 {},
             ),
         ]

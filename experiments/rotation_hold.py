@@ -1,5 +1,6 @@
-"""How firmly the matched faces hold each fit's rotation (`Estimate.hold.lever`) on varied data,
-against the fit's error: where `Thresholds.min_rotation_lever` comes from.
+"""How firmly the matched faces hold each fit's rotation (`Estimate.hold.lever`) and
+translation (`Estimate.slide.grip`) on varied data, against the fit's error: where
+`Thresholds.min_rotation_lever` and `Thresholds.min_translation_grip` come from.
 
 `uv run python experiments/rotation_hold.py [--seeds 2 3] [--pairs 6]`
 → `results/rotation_hold.{json,md}`
@@ -8,9 +9,11 @@ Pairs: the realistic benchmark's generator (`jaxpose.evaluation.realistic.make_c
 built-in target, σ = 0, 0.5, 1 and 2 cm, `--pairs` pairs each, draws other than the
 benchmark's seed 0 and its held-out seed 1), estimated with the default config through
 `jp.estimate_batch` (one compiled program per draw, key = the draw's seed). Per pair: the
-status, the status with the check off (`Thresholds(min_rotation_lever=0)`, the same fits),
-the rotation and centroid errors (`realistic.errors`) and the lever. The table lists
-every pair whose lever is below `LISTED_CM`, and the smallest lever among the others.
+status, the status with both checks off (`Thresholds(min_rotation_lever=0,
+min_translation_grip=0)`, the same fits), the rotation and centroid errors
+(`realistic.errors`), the lever and the grip. The tables list every pair whose lever is
+below `LISTED_CM`, and every pair whose grip is below `LISTED_GRIP`, with the smallest value
+among the others.
 """
 
 from __future__ import annotations
@@ -27,14 +30,16 @@ from jaxpose.evaluation import realistic
 LEVELS_CM = (0.0, 0.5, 1.0, 2.0)
 LISTED_CM = 1.0
 """Pairs with a lever below this (centimetres) are listed one by one."""
+LISTED_GRIP = 0.03
+"""Pairs with a grip below this are listed one by one."""
 
 
 def draw_rows(seed: int, pairs: int) -> list[dict]:
-    """One row per pair of draw `seed`: label, status, errors (°, cm) and lever (cm)."""
+    """One row per pair of draw `seed`: label, status, errors (°, cm), lever (cm) and grip."""
     cases = realistic.make_cases(pairs, seed=seed, levels=LEVELS_CM)
     prev, curr = stacked([c.prev for c in cases]), stacked([c.curr for c in cases])
     est = jp.estimate_batch(prev, curr, key=jax.random.key(seed))
-    without = jp.Config(thresholds=jp.Thresholds(min_rotation_lever=0.0))
+    without = jp.Config(thresholds=jp.Thresholds(min_rotation_lever=0.0, min_translation_grip=0.0))
     before = jp.estimate_batch(prev, curr, without, key=jax.random.key(seed)).status
     rows = []
     for i, case in enumerate(cases):
@@ -48,27 +53,43 @@ def draw_rows(seed: int, pairs: int) -> list[dict]:
                 "rotation_error_deg": err["rotation_error_deg"],
                 "centroid_error_cm": err["centroid_error_cm"],
                 "lever_cm": 100 * float(est.hold.lever[i]),
+                "grip": float(est.slide.grip[i]),
             }
         )
     return rows
 
 
-def markdown(rows: list[dict], threshold_cm: float) -> str:
-    listed = sorted((r for r in rows if r["lever_cm"] < LISTED_CM), key=lambda r: r["lever_cm"])
-    others = [r["lever_cm"] for r in rows if r["lever_cm"] >= LISTED_CM]
+def listed(rows: list[dict], key: str, below: float, header: str, cell, unit: str = "") -> list[str]:
+    """The rows whose `key` is below `below`, smallest first, as table lines, then the smallest
+    value among the others (with `unit`)."""
+    low = sorted((r for r in rows if r[key] < below), key=lambda r: r[key])
+    others = [r[key] for r in rows if r[key] >= below]
     lines = [
-        f"Pairs with a lever below {LISTED_CM:g} cm, of {len(rows)} (`Thresholds.min_rotation_lever` = "
-        f"{threshold_cm:g} cm; the status is the default config's, with the check):",
-        "",
-        "| draw | pair | lever, cm | rotation error, ° | centroid error, cm | status | without the check |",
+        f"| draw | pair | {header} | rotation error, ° | centroid error, cm | status | without the checks |",
         "|---|---|---|---|---|---|---|",
     ]
-    for r in listed:
+    for r in low:
         lines.append(
-            f"| {r['seed']} | {r['pair']} | {r['lever_cm']:.2f} | {r['rotation_error_deg']:.3f} | "
+            f"| {r['seed']} | {r['pair']} | {cell(r[key])} | {r['rotation_error_deg']:.3f} | "
             f"{r['centroid_error_cm']:.3f} | {r['status']} | {r['status_without_check']} |"
         )
-    lines += ["", f"Smallest lever of the other {len(others)} pairs: {min(others):.2f} cm." if others else ""]
+    name = header.split(",")[0]
+    smallest = f"Smallest {name} of the other {len(others)} pairs: {cell(min(others))}{unit}."
+    return lines + ["", smallest if others else ""]
+
+
+def markdown(rows: list[dict], threshold_cm: float, threshold_grip: float) -> str:
+    lines = [
+        f"Pairs with a lever below {LISTED_CM:g} cm, of {len(rows)} (`Thresholds.min_rotation_lever` = "
+        f"{threshold_cm:g} cm; the status is the default config's, with both checks):",
+        "",
+        *listed(rows, "lever_cm", LISTED_CM, "lever, cm", lambda v: f"{v:.2f}", " cm"),
+        "",
+        f"Pairs with a grip below {LISTED_GRIP:g}, of {len(rows)} (`Thresholds.min_translation_grip` = "
+        f"{threshold_grip:g}):",
+        "",
+        *listed(rows, "grip", LISTED_GRIP, "grip", lambda v: f"{v:.4f}"),
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -78,9 +99,10 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=6)
     args = parser.parse_args()
     rows = [row for seed in args.seeds for row in draw_rows(seed, args.pairs)]
-    threshold_cm = 100 * float(jp.Config().thresholds.min_rotation_lever)
+    thresholds = jp.Config().thresholds
+    threshold_cm = 100 * float(thresholds.min_rotation_lever)
     write_json("rotation_hold.json", {"seeds": args.seeds, "pairs": args.pairs, "rows": rows})
-    table = markdown(rows, threshold_cm)
+    table = markdown(rows, threshold_cm, float(thresholds.min_translation_grip))
     (RESULTS / "rotation_hold.md").write_text(table)
     print(table)
 

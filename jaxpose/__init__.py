@@ -41,6 +41,7 @@ from ._estimate import Status as Status
 from ._estimate import estimate as estimate
 from ._estimate_batch import estimate_batch as estimate_batch
 from ._fine import RotationHold as RotationHold
+from ._fine import SlideHold as SlideHold
 from ._frame import PlaneFrame as PlaneFrame
 from ._frame import plane_frame as plane_frame
 from ._io import load_cloud as load_cloud
@@ -95,6 +96,7 @@ __all__ = [
     "Estimate",
     "Hypotheses",
     "RotationHold",
+    "SlideHold",
     "PlaneFrame",
     "Problem",
     "Track",

@@ -16,7 +16,7 @@ from ._capture import capture_search
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
-from ._fine import FineResult, RotationHold, exact_surface, fine_refine, rotation_hold, without_range_noise
+from ._fine import FineResult, RotationHold, SlideHold, exact_surface, face_holds, fine_refine, without_range_noise
 from ._frame import PlaneFrame
 from ._objective import hard_score, soft_score
 from ._poses import motion_from_displacement, preceded_by_turn
@@ -52,7 +52,9 @@ class Status(eqx.Enumeration):
         "the fit's rotation uncertainty (the largest standard deviation of Estimate.covariance, combined with half "
         "Estimate.spread, the angle to another equally good fit) exceeds Thresholds.max_rotation_std_deg: the "
         "clouds do not pin the motion down to the 1° a success promises; or the matched faces barely hold a turn "
-        "(Estimate.hold.lever below Thresholds.min_rotation_lever; Estimate.hold.axis is its axis, camera frame)"
+        "(Estimate.hold.lever below Thresholds.min_rotation_lever; Estimate.hold.axis is its axis, camera frame) "
+        "or a translation (Estimate.slide.grip below Thresholds.min_translation_grip; Estimate.slide.direction "
+        "is its direction, camera frame)"
     )
 
 
@@ -152,6 +154,12 @@ class Estimate(eqx.Module):
       A lever below `Thresholds.min_rotation_lever` makes the result `Status.uncertain`: the
       views do not fix the turn about `axis` (a single flat face seen head-on, about its
       normal).
+    - `slide`: how firmly the matched faces hold the translation
+      ([`SlideHold`][jaxpose.SlideHold]: the `grip`, dimensionless, of the translation they
+      hold least, and its `direction` in the camera frame), or None without a fine stage. A
+      grip below `Thresholds.min_translation_grip` makes the result `Status.uncertain`: only
+      the view's outline fixes the translation along `direction` (two flat faces, along
+      their common edge).
     - `hypotheses`: the distinct motions found, best first ([`Hypotheses`][jaxpose.Hypotheses]):
       with the capture stage (`Config.so3`) its `RotationSearch.hypotheses`; otherwise the
       chosen fit and the alternative (or the estimate alone without a fine stage).
@@ -174,6 +182,7 @@ class Estimate(eqx.Module):
     covariance: Float[Array, "6 6"] | None
     spread: Float[Array, ""]
     hold: RotationHold | None = None
+    slide: SlideHold | None = None
 
     @property
     def status(self) -> Int[Array, "*batch"]:
@@ -545,11 +554,21 @@ def is_uncertain(
     return ~(jnp.degrees(std) <= config.thresholds.max_rotation_std_deg)
 
 
-def held_rotation(problem: Problem, config: Config, p: Float[Array, "6"]) -> RotationHold:
-    """[`rotation_hold`][jaxpose._fine.rotation_hold] of a fit p (frame n), its axis turned into
-    the camera frame c (the frame of `Estimate.rotation`'s rotation vector)."""
-    hold = rotation_hold(problem, config, p)
-    return RotationHold(hold.lever, problem.frame.axes @ hold.axis)
+def held_motion(problem: Problem, config: Config, p: Float[Array, "6"]) -> tuple[RotationHold, SlideHold]:
+    """[`face_holds`][jaxpose._fine.face_holds] of a fit p (frame n), the turn's axis and the
+    translation's direction turned into the camera frame c (the frame of `Estimate.rotation`'s
+    rotation vector and of `Estimate.translation`)."""
+    hold, slide = face_holds(problem, config, p)
+    axes = problem.frame.axes
+    return RotationHold(hold.lever, axes @ hold.axis), SlideHold(slide.grip, axes @ slide.direction)
+
+
+def barely_held(hold: RotationHold, slide: SlideHold, config: Config) -> Bool[Array, ""]:
+    """Whether the matched faces barely hold some turn (`RotationHold.lever` below
+    `Thresholds.min_rotation_lever`) or some translation (`SlideHold.grip` below
+    `Thresholds.min_translation_grip`)."""
+    thresholds = config.thresholds
+    return (hold.lever < thresholds.min_rotation_lever) | (slide.grip < thresholds.min_translation_grip)
 
 
 def _finish(
@@ -557,11 +576,11 @@ def _finish(
 ) -> Estimate:
     """The status (first matching condition of a fixed priority) and the estimate's fields."""
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
-    covariance, uncertain, hold = None, jnp.asarray(False), None
+    covariance, uncertain, hold, slide = None, jnp.asarray(False), None, None
     if fine is not None:
         covariance = motion_covariance(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
-        hold = held_rotation(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
-        uncertain = is_uncertain(covariance, config, spread) | (hold.lever < config.thresholds.min_rotation_lever)
+        hold, slide = held_motion(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
+        uncertain = is_uncertain(covariance, config, spread) | barely_held(hold, slide, config)
     conditions = [
         (problem.status != 0, Status.degenerate),
         (~finite, Status.non_finite),
@@ -596,6 +615,7 @@ def _finish(
         covariance=covariance,
         spread=jnp.where(finite, spread, 0.0),
         hold=hold,
+        slide=slide,
     )
 
 

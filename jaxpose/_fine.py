@@ -584,23 +584,49 @@ class RotationHold(NamedTuple):
     axis: Float[Array, "3"]
 
 
-def rotation_hold(problem, config: Config, p: Float[Array, "6"]) -> RotationHold:
-    """The turn that the matched faces of a fine-stage result p (frame n, radians and metres)
-    hold least firmly, and how firmly (`RotationHold`).
+class SlideHold(NamedTuple):
+    """How firmly the matched faces hold the translation of a fit (`jaxpose._fine.face_holds`).
+
+    - `grip`: dimensionless, 0–1: the root mean square component along the weakest
+      translation's direction of the normals of the faces the current points are matched to
+      (0: a slide that way moves no such point off its plane, as along the edge where two
+      flat faces meet; 0 where no point is matched to a face).
+    - `direction`: `(3,)` the weakest translation's unit direction (sign arbitrary): frame n
+      from `face_holds`, the camera frame c in `Estimate.slide`; zero where no point is
+      matched to a face.
+    """
+
+    grip: Float[Array, ""]
+    direction: Float[Array, "3"]
+
+
+def face_holds(problem, config: Config, p: Float[Array, "6"]) -> tuple[RotationHold, SlideHold]:
+    """The turn and the translation that the matched faces of a fine-stage result p (frame n,
+    radians and metres) hold least firmly, and how firmly ([`RotationHold`][],
+    [`SlideHold`][]).
 
     A small turn δ (rotation vector) of a matched current point q, with a translation τ,
     changes its point-to-plane residual by δ·((q − c) × n) + τ·n, n its plane's normal. Over
     the inliers of [`fine_covariance`][] matched to a face (`FineCloud.planar`: the most
     planar previous neighbourhoods), the mean outer product of ((q − c) × n, n) is a 6 × 6
-    information per point; with the translation eliminated (Schur complement; c drops out) the
-    smallest eigenvalue of its rotation block is the squared `lever` and its eigenvector the
-    `axis`. Faces only: the plane of least scatter across an edge or a corner, which the fit
-    uses too, tilts with the edge's sampling, and along a single face's outline it made a turn
+    information per point.
+
+    - The turn: with the translation eliminated (Schur complement; c drops out) the smallest
+      eigenvalue of its rotation block is the squared `lever` and its eigenvector the `axis`.
+    - The translation: the smallest eigenvalue of its translation block, the mean n nᵀ, is
+      the squared `grip` and its eigenvector the `direction`. Where the faces leave a
+      direction free (two flat faces: along their common edge; a bare cylinder: along its
+      axis) only the view's outline holds the fit there, through the fine stage's
+      point-to-point term, and on noise-free views the least-squares covariance still
+      promises micrometres. Range noise scatters the fitted normals and raises the grip
+      above its noise-free value.
+
+    Faces only: the plane of least scatter across an edge or a corner, which the fit uses
+    too, tilts with the edge's sampling, and along a single face's outline it made a turn
     about the face's normal look held. A turn the faces do not hold is left to the outline
     and to where the fit started (a single flat face seen head-on: the turn about its normal;
-    a bare cylinder: the turn about its axis), while the least-squares covariance, scaled by
-    the residuals (`SIGMA_FLOOR` on a noise-free view), still promises hundredths of a degree.
-    Geometric stability in the sense of Gelfand et al. (2003), for the fit's own matches."""
+    a bare cylinder: the turn about its axis). Geometric stability in the sense of Gelfand et
+    al. (2003), for the fit's own matches."""
     p = jnp.asarray(p, problem.d.dtype)
     b, live = select_current(problem, config, p, smooth=False)
     matched, weight, _ = _correspond(p, b, live, problem.fine, config.fine.inlier)
@@ -615,9 +641,20 @@ def rotation_hold(problem, config: Config, p: Float[Array, "6"]) -> RotationHold
     ridge = 1e-6 * jnp.trace(Htt) + jnp.finfo(q.dtype).tiny
     S = Hrr - Hrt @ jnp.linalg.solve(Htt + ridge * jnp.eye(3, dtype=q.dtype), Hrt.T)
     values, vectors = jnp.linalg.eigh((S + S.T) / 2)
+    shift_values, shift_vectors = jnp.linalg.eigh((Htt + Htt.T) / 2)
     matched_any = jnp.sum(w) > 0
     lever = jnp.where(matched_any, jnp.sqrt(jnp.maximum(values[0], 0.0)), 0.0)
-    return RotationHold(lever, jnp.where(matched_any, vectors[:, 0], 0.0))
+    grip = jnp.where(matched_any, jnp.sqrt(jnp.maximum(shift_values[0], 0.0)), 0.0)
+    return (
+        RotationHold(lever, jnp.where(matched_any, vectors[:, 0], 0.0)),
+        SlideHold(grip, jnp.where(matched_any, shift_vectors[:, 0], 0.0)),
+    )
+
+
+def rotation_hold(problem, config: Config, p: Float[Array, "6"]) -> RotationHold:
+    """The turn that the matched faces of a fine-stage result p (frame n, radians and metres)
+    hold least firmly, and how firmly: the first half of [`face_holds`][]."""
+    return face_holds(problem, config, p)[0]
 
 
 def least_squares_solver(tol: float) -> optx.GaussNewton:
@@ -802,6 +839,8 @@ __all__ = [
     "smallest_eigen",
     "fine_covariance",
     "RotationHold",
+    "SlideHold",
+    "face_holds",
     "rotation_hold",
     "fine_refine",
     "exact_surface",

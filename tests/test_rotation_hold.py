@@ -1,5 +1,6 @@
-"""How firmly a fit's matched surfaces hold its rotation (`jaxpose._fine.rotation_hold`) and the
-status it sets (`Thresholds.min_rotation_lever`)."""
+"""How firmly a fit's matched surfaces hold its rotation and translation
+(`jaxpose._fine.face_holds`) and the status they set (`Thresholds.min_rotation_lever`,
+`Thresholds.min_translation_grip`)."""
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +30,9 @@ def _exp(rotvec):
 CORNER = _turn([1.0, 1.0, 0.0], 50.0) @ _turn([0.0, 0.0, 1.0], 30.0)
 """A pose of N1 that shows three of its faces."""
 
+EDGE = _turn([0.0, 1.0, 0.0], 45.0)
+"""A pose of N1 that shows two of its faces, their common edge along the camera's y axis."""
+
 
 def _problem_at_truth(R0, dR):
     """The problem of the pair (R0, dR R0) at its true displacement (frame n)."""
@@ -55,6 +59,17 @@ def _direct_lever(problem, config, p, axis, turn=1e-3):
     change = np.sum(n * (R @ q - q), axis=0)  # each residual's change, the planes held fixed
     tau, *_ = np.linalg.lstsq(n.T, -change, rcond=None)
     return np.sqrt(np.mean((change + n.T @ tau) ** 2)) / turn
+
+
+def _direct_grip(problem, config, p, direction):
+    """An independent reference: the residuals' change per metre of a translation along
+    `direction` (frame n) over the fit's matched face planes, root mean square."""
+    b, live = _fine.select_current(problem, config, p, smooth=False)
+    matched, weight, _ = _fine._correspond(p, b, live, problem.fine, config.fine.inlier)
+    keep = np.asarray(weight & matched.planar)
+    n = np.asarray(matched.normals, float)[:, keep]
+    direction = np.asarray(direction, float) / np.linalg.norm(direction)
+    return np.sqrt(np.mean((direction @ n) ** 2))
 
 
 def test_a_face_seen_head_on_holds_no_turn_about_its_normal():
@@ -103,19 +118,63 @@ def test_a_corner_view_is_held_and_found():
     assert np.degrees(float(rotation_angle(est.rotation, jnp.asarray(dR)))) < 0.01
 
 
+def test_two_faces_hold_no_slide_along_their_common_edge():
+    """N1 turned 45° about the camera's y axis shows two faces: their planes say nothing about a
+    translation along the edge where they meet (grip ≈ 0), and its direction is that edge,
+    the camera's y axis; they hold every turn."""
+    problem, config, p = _problem_at_truth(EDGE, _turn([0.2, 1.0, -0.3], 4.0))
+    hold, slide = _fine.face_holds(problem, config, p)
+    assert float(slide.grip) < 1e-3
+    direction_c = np.asarray(problem.frame.axes @ slide.direction)
+    assert abs(direction_c[1]) > np.cos(np.radians(3.0))
+    assert float(hold.lever) > 2 * config.thresholds.min_rotation_lever
+
+
+def test_the_grip_is_the_least_that_any_translation_moves_the_matched_faces():
+    """On a corner view (three faces): the grip and its direction against the direct
+    reference, and every other direction moves the faces at least as much."""
+    problem, config, p = _problem_at_truth(CORNER, _turn([0.3, -1.0, 0.5], 5.0))
+    slide = _fine.face_holds(problem, config, p)[1]
+    grip = float(slide.grip)
+    assert grip > 0.1  # three faces hold every translation
+    np.testing.assert_allclose(_direct_grip(problem, config, p, np.asarray(slide.direction)), grip, rtol=1e-3)
+    rng = np.random.default_rng(0)
+    for direction in rng.normal(size=(12, 3)):
+        assert _direct_grip(problem, config, p, direction) >= grip * (1 - 1e-3)
+
+
+def test_two_faces_are_uncertain_and_name_the_free_slide():
+    """The whole call on the two-face pair: never a success, whatever the search's key, and
+    `Estimate.slide.direction` (camera frame) is the common edge, the camera's y axis."""
+    dR = _turn([0.2, 1.0, -0.3], 4.0)
+    prev, curr = _view(EDGE), _view(dR @ EDGE)
+    for seed in range(2):
+        est = jp.estimate(prev, curr, key=jax.random.key(seed))
+        assert int(est.status) != jp._estimate.SUCCESS
+        assert float(est.slide.grip) < jp.Config().thresholds.min_translation_grip
+        assert abs(float(est.slide.direction[1])) > np.cos(np.radians(3.0))
+
+
 @pytest.mark.parametrize("value", [-0.01, float("nan")])
 def test_the_threshold_is_checked(value):
     with pytest.raises(ValueError, match="min_rotation_lever"):
         jp.Thresholds(min_rotation_lever=value)
 
 
-def test_the_tracker_registers_without_the_lever_check():
-    """`chain_estimates` judges an unheld turn by motion continuity: its registrations' config
-    has the check off and is otherwise the caller's."""
+@pytest.mark.parametrize("value", [-0.01, 1.5, float("nan")])
+def test_the_grip_threshold_is_checked(value):
+    with pytest.raises(ValueError, match="min_translation_grip"):
+        jp.Thresholds(min_translation_grip=value)
+
+
+def test_the_tracker_registers_without_the_hold_checks():
+    """`chain_estimates` judges an unheld turn or translation by motion continuity: its
+    registrations' config has both checks off and is otherwise the caller's."""
     from jaxpose.tracking._track import registration_config
 
     config = jp.Config(thresholds=jp.Thresholds(min_score=0.6))
     inner = registration_config(config)
     assert inner.thresholds.min_rotation_lever == 0.0
+    assert inner.thresholds.min_translation_grip == 0.0
     assert inner.thresholds.min_score == 0.6
     assert inner.fine == config.fine

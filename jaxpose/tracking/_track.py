@@ -659,15 +659,20 @@ def motion_reached(p: Float[Array, "6"], config: Config, keyframe_reach: float |
 
 def registration_config(config: Config) -> Config:
     """The config of the tracker's registrations: `config` with `Thresholds.min_rotation_lever`
-    = 0. A pair whose matched faces barely hold a turn (`Estimate.hold`) is `Status.uncertain`
-    on its own, and the tracker accepts an uncertain registration only where it agrees with
-    the prediction. On the tracking benchmark's noise-free grazing fragment (tumble 4: a bent
-    panel, nearly one face) its registrations often have such a turn; with the check, 12 of its 251
-    frames registered and the track was lost (rate error 13.8 °/s at 10 s), without it 198
+    and `Thresholds.min_translation_grip` = 0. A pair whose matched faces barely hold a turn
+    (`Estimate.hold`) or a translation (`Estimate.slide`) is `Status.uncertain` on its own, and
+    the tracker accepts an uncertain registration only where it agrees with the prediction:
+    continuity, not the single pair, judges it. The translation check has not been run on the
+    tracking benchmark; the tracker keeps the registrations that benchmark measured. On the
+    tracking benchmark's noise-free grazing fragment (tumble 4: a bent panel, nearly one face)
+    its registrations often have such a turn; with the lever check, 12 of its 251 frames
+    registered and the track was lost (rate error 13.8 °/s at 10 s), without it 198
     (0.24 °/s), the other 19 tumbles the same either way (docs, Tracking). Those
     registrations still go to the filter with their least-squares covariance, which does not
     widen along the free turn."""
-    return eqx.tree_at(lambda c: c.thresholds.min_rotation_lever, config, 0.0)
+    return eqx.tree_at(
+        lambda c: (c.thresholds.min_rotation_lever, c.thresholds.min_translation_grip), config, (0.0, 0.0)
+    )
 
 
 def chain_estimates(
