@@ -409,7 +409,7 @@ class Thresholds(eqx.Module):
       show that it is. `inf` turns the check off. Needs a fine stage (the covariance is its
       least squares').
     - `min_rotation_lever`: a result whose matched faces hold some turn by less than this
-      lever (metres; `Estimate.hold`, `jaxpose._fine.rotation_hold`) is
+      lever (metres; `Estimate.hold`, `jaxpose._fine.face_holds`) is
       reported `Status.uncertain`, and `Estimate.hold.axis` names the turn. A single flat
       face seen head-on leaves the turn about its normal to the view's outline; the fit ends
       wherever its start left it while its covariance, scaled by residuals of round-off,
@@ -428,8 +428,8 @@ class Thresholds(eqx.Module):
       (draws 2 and 3; `experiments/rotation_hold.py`) 17 noise-free successes had a grip
       below 0.01 and centroid errors of 0.008–3.0 cm (median 0.36 cm); every noisy view's
       grip was 0.0215 or more, as range noise scatters the fitted normals (docs,
-      Estimating). 0 turns the check off. The
-      tracker's registrations run without it, as without the lever. Needs a fine stage.
+      Estimating). 0 turns the check off. The tracker's registrations run without it, as
+      without the lever. Needs a fine stage.
     """
 
     min_score: Scalar = 0.7

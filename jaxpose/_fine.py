@@ -570,13 +570,13 @@ def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Arra
 
 
 class RotationHold(NamedTuple):
-    """How firmly the matched faces hold the rotation of a fit (`jaxpose._fine.rotation_hold`).
+    """How firmly the matched faces hold the rotation of a fit (`jaxpose._fine.face_holds`).
 
     - `lever`: metres, the root mean square distance along their planes' normals that the
       current points matched to faces move per radian of the weakest turn, with the
       translation that best undoes it (0 where no point is matched to a face).
     - `axis`: `(3,)` the weakest turn's unit axis (sign arbitrary): frame n from
-      `rotation_hold`, the camera frame c in `Estimate.hold`; zero where no point is matched
+      `face_holds`, the camera frame c in `Estimate.hold`; zero where no point is matched
       to a face.
     """
 
@@ -649,12 +649,6 @@ def face_holds(problem, config: Config, p: Float[Array, "6"]) -> tuple[RotationH
         RotationHold(lever, jnp.where(matched_any, vectors[:, 0], 0.0)),
         SlideHold(grip, jnp.where(matched_any, shift_vectors[:, 0], 0.0)),
     )
-
-
-def rotation_hold(problem, config: Config, p: Float[Array, "6"]) -> RotationHold:
-    """The turn that the matched faces of a fine-stage result p (frame n, radians and metres)
-    hold least firmly, and how firmly: the first half of [`face_holds`][]."""
-    return face_holds(problem, config, p)[0]
 
 
 def least_squares_solver(tol: float) -> optx.GaussNewton:
@@ -841,7 +835,6 @@ __all__ = [
     "RotationHold",
     "SlideHold",
     "face_holds",
-    "rotation_hold",
     "fine_refine",
     "exact_surface",
     "without_range_noise",

@@ -44,15 +44,20 @@ def _problem_at_truth(R0, dR):
     return problem, config, p
 
 
+def _face_matches(problem, config, p):
+    """The fit's current points matched to faces (frame ν, `(3, F)`) and their planes' normals
+    (`(3, F)`): the raw current side, the fit's inliers among the most planar matches."""
+    b, live = _fine.select_current(problem, config, p, smooth=False)
+    matched, weight, _ = _fine._correspond(p, b, live, problem.fine, config.fine.inlier)
+    keep = np.asarray(weight & matched.planar)
+    return np.asarray(_fine._moved(p, b), float)[:, keep], np.asarray(matched.normals, float)[:, keep]
+
+
 def _direct_lever(problem, config, p, axis, turn=1e-3):
     """An independent reference: the residuals of the fit's matched face planes after a small
     turn about `axis` (frame n) and the translation that best undoes it (least squares),
     root mean square per radian of turn. Sets of points, planes and matches are the fit's own."""
-    b, live = _fine.select_current(problem, config, p, smooth=False)
-    matched, weight, _ = _fine._correspond(p, b, live, problem.fine, config.fine.inlier)
-    keep = np.asarray(weight & matched.planar)
-    q = np.asarray(_fine._moved(p, b), float)[:, keep]
-    n = np.asarray(matched.normals, float)[:, keep]
+    q, n = _face_matches(problem, config, p)
     q = q - q.mean(axis=1, keepdims=True)
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
     R = _exp(turn * axis)
@@ -64,10 +69,7 @@ def _direct_lever(problem, config, p, axis, turn=1e-3):
 def _direct_grip(problem, config, p, direction):
     """An independent reference: the residuals' change per metre of a translation along
     `direction` (frame n) over the fit's matched face planes, root mean square."""
-    b, live = _fine.select_current(problem, config, p, smooth=False)
-    matched, weight, _ = _fine._correspond(p, b, live, problem.fine, config.fine.inlier)
-    keep = np.asarray(weight & matched.planar)
-    n = np.asarray(matched.normals, float)[:, keep]
+    _, n = _face_matches(problem, config, p)
     direction = np.asarray(direction, float) / np.linalg.norm(direction)
     return np.sqrt(np.mean((direction @ n) ** 2))
 
@@ -85,7 +87,7 @@ def test_a_face_seen_head_on_holds_no_turn_about_its_normal():
     say nothing about that turn (lever ≈ 0), and its axis is the face's normal, the camera's
     z axis."""
     problem, config, p = _problem_at_truth(np.eye(3), _turn([0, 0, 1], 4.0))
-    hold = _fine.rotation_hold(problem, config, p)
+    hold = _fine.face_holds(problem, config, p)[0]
     assert float(hold.lever) < 1e-3
     axis_c = np.asarray(problem.frame.axes @ hold.axis)
     assert abs(axis_c[2]) > np.cos(np.radians(1.0))
@@ -95,7 +97,7 @@ def test_the_lever_is_the_least_that_any_turn_moves_the_matched_faces():
     """On a corner view (three faces): the lever and its axis against the direct least-squares
     reference, and every other axis moves the faces at least as much."""
     problem, config, p = _problem_at_truth(CORNER, _turn([0.3, -1.0, 0.5], 5.0))
-    hold = _fine.rotation_hold(problem, config, p)
+    hold = _fine.face_holds(problem, config, p)[0]
     assert float(hold.lever) > 0.05  # three faces hold every turn
     _assert_the_least(lambda axis: _direct_lever(problem, config, p, axis), float(hold.lever), hold.axis, 2e-2)
 
