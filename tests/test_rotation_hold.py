@@ -93,13 +93,16 @@ def test_a_face_seen_head_on_holds_no_turn_about_its_normal():
     assert abs(axis_c[2]) > np.cos(np.radians(1.0))
 
 
-def test_the_lever_is_the_least_that_any_turn_moves_the_matched_faces():
-    """On a corner view (three faces): the lever and its axis against the direct least-squares
-    reference, and every other axis moves the faces at least as much."""
+def test_the_holds_are_the_least_that_any_turn_or_translation_moves_the_matched_faces():
+    """On a corner view (three faces): the lever and its axis, and the grip and its direction,
+    against the direct references, and every other axis or direction moves the faces at least
+    as much."""
     problem, config, p = _problem_at_truth(CORNER, _turn([0.3, -1.0, 0.5], 5.0))
-    hold = _fine.face_holds(problem, config, p)[0]
+    hold, slide = _fine.face_holds(problem, config, p)
     assert float(hold.lever) > 0.05  # three faces hold every turn
     _assert_the_least(lambda axis: _direct_lever(problem, config, p, axis), float(hold.lever), hold.axis, 2e-2)
+    assert float(slide.grip) > 0.1  # and every translation
+    _assert_the_least(lambda d: _direct_grip(problem, config, p, d), float(slide.grip), slide.direction, 1e-3)
 
 
 def test_a_face_seen_head_on_is_uncertain_and_names_the_free_turn():
@@ -134,15 +137,6 @@ def test_two_faces_hold_no_slide_along_their_common_edge():
     direction_c = np.asarray(problem.frame.axes @ slide.direction)
     assert abs(direction_c[1]) > np.cos(np.radians(3.0))
     assert float(hold.lever) > 2 * config.thresholds.min_rotation_lever
-
-
-def test_the_grip_is_the_least_that_any_translation_moves_the_matched_faces():
-    """On a corner view (three faces): the grip and its direction against the direct
-    reference, and every other direction moves the faces at least as much."""
-    problem, config, p = _problem_at_truth(CORNER, _turn([0.3, -1.0, 0.5], 5.0))
-    slide = _fine.face_holds(problem, config, p)[1]
-    assert float(slide.grip) > 0.1  # three faces hold every translation
-    _assert_the_least(lambda d: _direct_grip(problem, config, p, d), float(slide.grip), slide.direction, 1e-3)
 
 
 def test_two_faces_are_uncertain_and_name_the_free_slide():
