@@ -23,7 +23,11 @@ Euler's equations.
    angular momentum R_k M u_k and the energy u_kᵀ M u_k are constant for the inertia tensor
    M = P J Pᵀ expressed in those axes. Both are linear in M's six entries, so M comes from
    the smallest singular vector of the stacked deviations from their means. Its eigenvectors
-   give P and its eigenvalues the ratios. Three starts, from h, 2h and 4h (`START_WINDOWS`).
+   give P and its eigenvalues the ratios. Where the body rate's direction moves little,
+   M + c·I is nearly as constant and the two smallest singular vectors share M, so each start
+   tries `START_MIXES` tensors in their span, the least-squares one first, and keeps the one
+   of least cost of step 2 (`inertia_candidates`). Three starts, from h, 2h and 4h
+   (`START_WINDOWS`).
 2. *Attitude, nonlinear.* optimistix Levenberg–Marquardt over the axes (a rotation vector
    on the left of P), the two ratios (as logarithms) and the first frame's rate in frame c,
    from each start; the fit of least cost is kept. The residuals compare each measured
@@ -114,6 +118,10 @@ SHARED_ROUNDS = 2
 """Refits after the first least-squares fit, each with the keyframes' shared error estimated
 from the last fit's residuals (`shared_variance_ratio`, `decorrelated`); 0 fits once with
 the registrations taken as independent."""
+
+START_MIXES = 12
+"""Inertia tensors each linear start tries (`inertia_candidates`), spread over half a turn in
+the span of step 1's two smallest singular vectors; the one of least cost starts the fit."""
 
 START_WINDOWS = (1, 2, 4)
 """Multiples of the rate window whose linear starts (`linear_start`) are each fitted; the
@@ -346,22 +354,51 @@ def _momentum_rows(R: Float[Array, "3 3"], u: Float[Array, "3"]) -> Float[Array,
     return jnp.concatenate([R @ B, energy[None]])
 
 
-def initial_inertia(
-    rotations: Float[Array, "T 3 3"], rates: Float[Array, "T 3"], ok: Bool[Array, " T"]
-) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:
-    """Principal axes P (frame c at t = 0, det +1) and moments (J1 ≤ J2 ≤ J3, divided by J3)
-    from conservation of angular momentum and energy (step 1 of the module's notes)."""
-    rows = jax.vmap(_momentum_rows)(rotations, rates)  # (T, 4, 6)
-    w = ok.astype(rows.dtype)[:, None, None]
-    mean = jnp.sum(rows * w, axis=0) / jnp.maximum(jnp.sum(w), 1.0)
-    dev = ((rows - mean[None]) * w).reshape(-1, 6)
-    _, _, vt = jnp.linalg.svd(dev, full_matrices=False)
-    m = vt[-1]
+def _tensor(m: Float[Array, "6"]) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:
+    """Principal axes (det +1) and moments (ascending, divided by the largest, each at least
+    `MIN_MOMENT` of it) of the symmetric tensor with entries m = (M11, M22, M33, M12, M13,
+    M23), its sign chosen for a positive trace."""
     M = jnp.array([[m[0], m[3], m[4]], [m[3], m[1], m[5]], [m[4], m[5], m[2]]])
     M = M * jnp.sign(jnp.trace(M) + 1e-30)
     evals, evecs = jnp.linalg.eigh(M)
     evals = jnp.maximum(evals, MIN_MOMENT * evals[2])
     return _right_handed(evecs), evals / evals[2]
+
+
+def inertia_candidates(
+    rotations: Float[Array, "T 3 3"], rates: Float[Array, "T 3"], ok: Bool[Array, " T"], count: int = START_MIXES
+) -> tuple[Float[Array, "K 3 3"], Float[Array, "K 3"]]:
+    """Principal axes P (frame c at t = 0, det +1) and moments (J1 ≤ J2 ≤ J3, divided by J3)
+    of `count` inertia tensors from conservation of angular momentum and energy (step 1 of
+    the module's notes): cos α v₆ + sin α v₅ for α = kπ / `count`, with v₆ and v₅ the two
+    smallest right singular vectors of the stacked rows' deviations from their means; the
+    first (α = 0) is the least-squares one.
+
+    Why a span and not the smallest vector alone: adding c·I to the inertia tensor changes
+    the angular momentum by c times the inertial rate, which moves only as far as the body
+    rate's direction does. On a tumble of little excitation that is within the rate noise,
+    so the two smallest singular values come out nearly equal and the smallest vector is an
+    arbitrary mix of J and I. On the satellite's tumble of `experiments/identify.py
+    synthetic` (0.2° of white noise per frame, every frame measured from a noisy first one)
+    least squares from the smallest vector alone ended at a cost of 1.0 × 10⁹ against 53,860
+    for the noise alone (docs, Tracking: the linear start's span)."""
+    rows = jax.vmap(_momentum_rows)(rotations, rates)  # (T, 4, 6)
+    w = ok.astype(rows.dtype)[:, None, None]
+    mean = jnp.sum(rows * w, axis=0) / jnp.maximum(jnp.sum(w), 1.0)
+    dev = ((rows - mean[None]) * w).reshape(-1, 6)
+    _, _, vt = jnp.linalg.svd(dev, full_matrices=False)
+    angles = jnp.arange(count, dtype=rows.dtype) * (jnp.pi / count)
+    mixes = jnp.cos(angles)[:, None] * vt[-1][None] + jnp.sin(angles)[:, None] * vt[-2][None]
+    return jax.vmap(_tensor)(mixes)
+
+
+def initial_inertia(
+    rotations: Float[Array, "T 3 3"], rates: Float[Array, "T 3"], ok: Bool[Array, " T"]
+) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:
+    """The least-squares tensor of [`inertia_candidates`][] (its first): principal axes P
+    (frame c at t = 0, det +1) and moments (J1 ≤ J2 ≤ J3, divided by J3)."""
+    axes, moments = inertia_candidates(rotations, rates, ok, 1)
+    return axes[0], moments[0]
 
 
 def _right_handed(axes: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
@@ -627,12 +664,21 @@ def start_windows(rate_window: int, frames: int) -> tuple[int, ...]:
     return tuple(sorted({min(m * rate_window, widest) for m in START_WINDOWS}))
 
 
-def linear_start(times, rotations, valid, half: int):
+def linear_start(times, rotations, valid, half: int, cost=None):
     """(axes, moments, ω at the first valid rate) from centred differences over ±`half`
-    frames and conservation of momentum and energy (step 1 of the module's notes)."""
+    frames and conservation of momentum and energy (step 1 of the module's notes): of
+    [`inertia_candidates`][], the one of least `cost(axes, moments, ω)` (the fit's own
+    least-squares cost at that start; non-finite costs never chosen), or the least-squares
+    tensor where `cost` is None."""
     rates, ok = body_rates(times, rotations, valid, half)
-    axes, moments = initial_inertia(rotations, rates, ok)
-    return axes, moments, rates[jnp.argmax(ok)]
+    omega = rates[jnp.argmax(ok)]
+    if cost is None:
+        axes, moments = initial_inertia(rotations, rates, ok)
+        return axes, moments, omega
+    axes, moments = inertia_candidates(rotations, rates, ok)
+    costs = jax.vmap(lambda a, m: cost(a, m, omega))(axes, moments)
+    best = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
+    return axes[best], moments[best], omega
 
 
 def identify_motion(
@@ -704,7 +750,13 @@ def _identify_motion(
 
     # The linear starts take the motions in frame c at t = 0 (the camera's own turn undone).
     inertial = jnp.einsum("tji,tjk->tik", orbit.camera_turn(times), rotations)
-    starts = [linear_start(times, inertial, valid, h) for h in start_windows(rate_window, T)]
+
+    def start_cost(axes, moments, omega):
+        data = (times, rotations, used, references, whiten, axes, moments, orbit)
+        theta = jnp.concatenate([jnp.zeros(5, times.dtype), omega])
+        return jnp.sum(_rotation_residuals(theta, data) ** 2)
+
+    starts = [linear_start(times, inertial, valid, h, start_cost) for h in start_windows(rate_window, T)]
     axes_s, moments_s, omega_s = (jnp.stack(part) for part in zip(*starts, strict=True))
     n_starts = len(starts)
 
