@@ -15,6 +15,8 @@ refine that started the first fit, and the ratio of the previous cloud's two lar
 principal moments. This shows how far apart the right and the wrong fits of a near-symmetric
 target are (docs, Findings: turns about a near-symmetry axis), and how far a fit slides
 along the faces from where the refine left it (docs, Findings: slides along the faces).
+`results/fine_runs_TARGET.json` hold every pair's fits per target (`fine_runs.py TARGET --out
+results/fine_runs_TARGET.json`), which `fine_ranking.py` ranks by other rules.
 """
 
 from __future__ import annotations
