@@ -180,6 +180,17 @@ def markdown(rows: list[dict], duration: float, rate_hz: float, horizon: float) 
     return head + "\n".join(lines) + "\n"
 
 
+def listed(values) -> str:
+    """Numbers as one markdown cell: "a, b, c"."""
+    return ", ".join(f"{v:g}" for v in values)
+
+
+def write_table(name: str, head: str, lines: list[str], payload: dict) -> None:
+    """`results/{name}.md` (`head`, then one table row per line) and `results/{name}.json`."""
+    (RESULTS / f"{name}.md").write_text(head + "\n".join(lines) + "\n")
+    write_json(f"{name}.json", payload)
+
+
 def fit_costs(get, dt: float, dyn: jp.Dynamics, tumble: Tumble) -> tuple[float, float]:
     """The least-squares cost (whitened, decorrelated attitude residuals, as `identify`
     minimises it) of the fitted dynamics and of the true ones (principal axes, ratios and
@@ -274,15 +285,13 @@ def refit(**options) -> list[dict]:
         "cost: fit / truth (residuals) |\n"
         "|---|---|---|---|---|---|---|---|---|\n"
     )
-    fmt = lambda values: ", ".join(f"{v:g}" for v in values)  # noqa: E731
     lines = [
-        f"| {r['case']} | {fmt(r['ratio_error_pct'])} | {fmt(r['axis_error_deg'])} | {r['centre_error_cm']:g} | "
-        f"{fmt(r['centre_axis_error_cm'])} | {fmt(r['centre_std_cm'])} | {fmt(r['centre_z'])} | {r['observable']} | "
-        f"{r['cost_fit']:.0f} / {r['cost_truth']:.0f} ({r['residuals']}) |"
+        f"| {r['case']} | {listed(r['ratio_error_pct'])} | {listed(r['axis_error_deg'])} | {r['centre_error_cm']:g} | "
+        f"{listed(r['centre_axis_error_cm'])} | {listed(r['centre_std_cm'])} | {listed(r['centre_z'])} | "
+        f"{r['observable']} | {r['cost_fit']:.0f} / {r['cost_truth']:.0f} ({r['residuals']}) |"
         for r in rows
     ]
-    (RESULTS / "identify_refit.md").write_text(head + "\n".join(lines) + "\n")
-    write_json("identify_refit.json", {"rows": rows})
+    write_table("identify_refit", head, lines, {"rows": rows})
     return rows
 
 
@@ -350,18 +359,14 @@ def synthetic(sigma_deg: float = 0.2, duration: float = 60.0, rate_hz: float = 2
         "| case | first frame | ratio errors % | axis errors ° | cost: fit / truth / noise (residuals) | observable |\n"
         "|---|---|---|---|---|---|\n"
     )
-    fmt = lambda values: ", ".join(f"{v:g}" for v in values)  # noqa: E731
     lines = [
-        f"| {r['case']} | {r['first_frame']} | {fmt(r['ratio_error_pct'])} | {fmt(r['axis_error_deg'])} | "
+        f"| {r['case']} | {r['first_frame']} | {listed(r['ratio_error_pct'])} | {listed(r['axis_error_deg'])} | "
         f"{r['cost_fit']:.0f} / {r['cost_truth']:.0f} / {r['cost_noise']:.0f} ({r['residuals']}) | "
         f"{r['observable']} |"
         for r in rows
     ]
-    (RESULTS / "identify_synthetic.md").write_text(head + "\n".join(lines) + "\n")
-    write_json(
-        "identify_synthetic.json",
-        {"sigma_deg": sigma_deg, "duration_s": duration, "rate_hz": rate_hz, "seed": seed, "rows": rows},
-    )
+    payload = {"sigma_deg": sigma_deg, "duration_s": duration, "rate_hz": rate_hz, "seed": seed, "rows": rows}
+    write_table("identify_synthetic", head, lines, payload)
     return rows
 
 
