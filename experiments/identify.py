@@ -192,41 +192,40 @@ def write_table(name: str, head: str, lines: list[str], payload: dict) -> None:
 
 
 def fit_costs(get, dt: float, dyn: jp.Dynamics, tumble: Tumble) -> tuple[float, float]:
-    """The least-squares cost (whitened, decorrelated attitude residuals, as `identify`
-    minimises it) of the fitted dynamics and of the true ones (principal axes, ratios and
-    first rate of `tumble`), both with the shared-error ratio ρ of the fit's residuals. A
-    truth that costs less than the fit means the search missed the minimum; one that costs
-    as much means the data do not tell the two apart."""
+    """[`costs_at_fit_and_truth`][] on a saved track's arrays (`get(name)`), with the truth
+    of `tumble`. A truth that costs less than the fit means the search missed the minimum;
+    one that costs as much means the data do not tell the two apart."""
     rotations = jnp.asarray(get("rotations"))
     T = rotations.shape[0]
-    times = jnp.arange(T, dtype=rotations.dtype) * dt
     references = jnp.asarray(get("keyframes"), jnp.int32)
     _, finite = chained_motions(rotations, jnp.asarray(get("points"), rotations.dtype))
-    valid = jnp.asarray(get("registered"), bool) & finite
-    used = valid & valid[references] & (references != jnp.arange(T))
+    used = _identify.used_frames(jnp.asarray(get("registered"), bool) & finite, references)
     whiten = _identify._whitening(jnp.asarray(get("measurement_cov"), rotations.dtype)[:, :3, :3], used)
-    orbit = jp.Orbit.inertial()
+    times = jnp.arange(T, dtype=rotations.dtype) * dt
+    _, _, axes, ratios, omega = truth(tumble, jnp.zeros(1))
+    return costs_at_fit_and_truth(dyn, (axes, ratios, omega), times, rotations, used, references, whiten)
+
+
+def costs_at_fit_and_truth(dyn, true, times, rotations, used, references, whiten) -> tuple[float, float]:
+    """The least-squares cost that `identify` minimises (whitened attitude residuals of the
+    motions reference → frame, decorrelated for the keyframes' shared error) at the fitted
+    dynamics `dyn` and at the true ones, `true` = (principal axes, ratios, first rate) as
+    `truth` gives them; both decorrelated with the ratio ρ of the fit's residuals, as
+    `identify` decorrelates its last fit."""
+    dtype = rotations.dtype
 
     def residuals(axes, ratios, omega):
-        moments = jnp.concatenate([jnp.asarray(ratios, rotations.dtype), jnp.ones(1, rotations.dtype)])
-        data = (times, rotations, used, references, whiten, jnp.asarray(axes, rotations.dtype), moments, orbit)
-        theta = jnp.concatenate([jnp.zeros(5, rotations.dtype), jnp.asarray(omega, rotations.dtype)])
+        moments = jnp.concatenate([jnp.asarray(ratios, dtype), jnp.ones(1, dtype)])
+        data = (times, rotations, used, references, whiten, jnp.asarray(axes, dtype), moments, jp.Orbit.inertial())
+        theta = jnp.concatenate([jnp.zeros(5, dtype), jnp.asarray(omega, dtype)])
         return _identify._rotation_residuals(theta, data)
 
-    _, _, axes, ratios, omega = truth(tumble, jnp.zeros(1))
+    axes, ratios, omega = true
     fitted = residuals(dyn.principal_axes, dyn.inertia_ratios, dyn.omega)
-    return decorrelated_costs(
-        fitted, residuals(_identify._right_handed(jnp.asarray(axes)), ratios[:2], omega), used, references
-    )
-
-
-def decorrelated_costs(fitted, true, used, references) -> tuple[float, float]:
-    """The sums of squares of the fit's and the truth's whitened residuals (T, 3), both
-    decorrelated for the keyframes' shared error with the ratio ρ of the fit's residuals, as
-    `identify` decorrelates its last fit."""
+    at_truth = residuals(_identify._right_handed(jnp.asarray(axes)), ratios[:2], omega)
     rho = _identify.shared_variance_ratio(fitted, used, references)
     cost = lambda r: float(jnp.sum(_identify.decorrelated(r, used, references, rho) ** 2))  # noqa: E731
-    return cost(fitted), cost(true)
+    return cost(fitted), cost(at_truth)
 
 
 def refit(**options) -> list[dict]:
@@ -306,20 +305,12 @@ def synthetic_row(case: str, index: int, times, noise_vectors: np.ndarray, first
     noise = jax.vmap(lambda v: jaxlie.SO3.exp(v).as_matrix())(vectors)
     motions = jnp.asarray(np.asarray(G) @ np.asarray(G[0]).T, jnp.float32)
     rotations = jnp.einsum("tij,tjk->tik", noise, motions)
-    dyn = _identify.identify_motion(times, rotations, jnp.zeros((T, 3), jnp.float32), jnp.ones(T, bool))
-    used, references = jnp.arange(T) > 0, jnp.zeros(T, jnp.int32)
+    valid, references = jnp.ones(T, bool), jnp.zeros(T, jnp.int32)
+    dyn = _identify.identify_motion(times, rotations, jnp.zeros((T, 3), jnp.float32), valid)
+    used = _identify.used_frames(valid, references)
     whiten = jnp.broadcast_to(jnp.eye(3, dtype=jnp.float32) / _identify.RESIDUAL_UNIT, (T, 3, 3))
-
-    def residuals(axes, ratios, omega):
-        moments = jnp.concatenate([jnp.asarray(ratios, jnp.float32), jnp.ones(1, jnp.float32)])
-        axes = jnp.asarray(axes, jnp.float32)
-        data = (times, rotations, used, references, whiten, axes, moments, jp.Orbit.inertial())
-        theta = jnp.concatenate([jnp.zeros(5, jnp.float32), jnp.asarray(omega, jnp.float32)])
-        return _identify._rotation_residuals(theta, data)
-
-    fitted = residuals(dyn.principal_axes, dyn.inertia_ratios, dyn.omega)
-    true = residuals(_identify._right_handed(jnp.asarray(axes)), ratios[:2], omega)
-    cost_fit, cost_truth = decorrelated_costs(fitted, true, used, references)
+    true = (axes, ratios, omega)
+    cost_fit, cost_truth = costs_at_fit_and_truth(dyn, true, times, rotations, used, references, whiten)
     cosines = np.abs(np.sum(np.asarray(dyn.principal_axes) * axes, axis=0))
     return {
         "case": case,
@@ -340,7 +331,7 @@ def synthetic(sigma_deg: float = 0.2, duration: float = 60.0, rate_hz: float = 2
     first frame, equal weights; the first frame exact, then with its own noise, which every
     measurement then shares (as a track against a model shares the model's error). Per case:
     the ratios' relative errors (%), the axes' errors (°), `observable`, and the least-squares
-    cost at the fit, at the true dynamics (`decorrelated_costs`) and of the noise alone (the
+    cost at the fit, at the true dynamics (`costs_at_fit_and_truth`) and of the noise alone (the
     exact motions with the first frame's error known) → `results/identify_synthetic.{json,md}`.
     It tests the fit apart from the registrations: a fit that costs far more than the noise
     alone is the search's failure."""

@@ -392,15 +392,6 @@ def inertia_candidates(
     return jax.vmap(_tensor)(mixes)
 
 
-def initial_inertia(
-    rotations: Float[Array, "T 3 3"], rates: Float[Array, "T 3"], ok: Bool[Array, " T"]
-) -> tuple[Float[Array, "3 3"], Float[Array, "3"]]:
-    """The least-squares tensor of [`inertia_candidates`][] (its first): principal axes P
-    (frame c at t = 0, det +1) and moments (J1 ≤ J2 ≤ J3, divided by J3)."""
-    axes, moments = inertia_candidates(rotations, rates, ok, 1)
-    return axes[0], moments[0]
-
-
 def _right_handed(axes: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
     """`axes` with its first column flipped if needed so that det = +1 (still principal axes)."""
     sign = jnp.sign(jnp.linalg.det(axes))
@@ -664,21 +655,23 @@ def start_windows(rate_window: int, frames: int) -> tuple[int, ...]:
     return tuple(sorted({min(m * rate_window, widest) for m in START_WINDOWS}))
 
 
-def linear_start(times, rotations, valid, half: int, cost=None):
+def linear_start(times, rotations, valid, half: int, cost):
     """(axes, moments, ω at the first valid rate) from centred differences over ±`half`
     frames and conservation of momentum and energy (step 1 of the module's notes): of
     [`inertia_candidates`][], the one of least `cost(axes, moments, ω)` (the fit's own
-    least-squares cost at that start; non-finite costs never chosen), or the least-squares
-    tensor where `cost` is None."""
+    least-squares cost at that start; non-finite costs never chosen)."""
     rates, ok = body_rates(times, rotations, valid, half)
     omega = rates[jnp.argmax(ok)]
-    if cost is None:
-        axes, moments = initial_inertia(rotations, rates, ok)
-        return axes, moments, omega
     axes, moments = inertia_candidates(rotations, rates, ok)
     costs = jax.vmap(lambda a, m: cost(a, m, omega))(axes, moments)
     best = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
     return axes[best], moments[best], omega
+
+
+def used_frames(valid: Bool[Array, " T"], references: Int[Array, " T"]) -> Bool[Array, " T"]:
+    """The frames whose motion reference → frame the fit compares: valid, measured from a
+    valid reference, and not a reference measured from itself."""
+    return valid & valid[references] & (references != jnp.arange(valid.shape[0]))
 
 
 def identify_motion(
@@ -728,7 +721,7 @@ def _identify_motion(
     that both kinds of camera share one compiled program."""
     T = times.shape[0]
     references = jnp.zeros(T, jnp.int32) if references is None else references
-    used = valid & valid[references] & (references != jnp.arange(T))
+    used = used_frames(valid, references)
     eye = jnp.eye(3, dtype=times.dtype)
     if rotation_cov is None:
         whiten = jnp.broadcast_to(eye / RESIDUAL_UNIT, (T, 3, 3))
