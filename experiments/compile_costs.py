@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import os
-import statistics
 import subprocess
 import sys
 import time
@@ -35,7 +34,7 @@ import time
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from _common import RESULTS, write_json
+from _common import RESULTS, time_call, write_json
 
 import jaxpose as jp
 from jaxpose import _batch, _estimate, _objective, _search
@@ -131,13 +130,8 @@ def pair():
 
 
 def median_ms(fn, *args, repeats: int = 9) -> float:
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times)
+    """Median milliseconds of `repeats` calls after a first one (`time_call`)."""
+    return 1e3 * time_call(fn, *args, repeats=repeats)["median_s"]
 
 
 def child(variant: str) -> dict:

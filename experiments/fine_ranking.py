@@ -27,25 +27,30 @@ import json
 import sys
 from collections import defaultdict
 from pathlib import Path
+from types import SimpleNamespace
 
 from _common import RESULTS, write_json
 
-from jaxpose._estimate import FINE_TIE
+from jaxpose._estimate import FINE_TIE, prefers
 
 THRESHOLD_DEG, THRESHOLD_CM, FOUND_DEG = 0.05, 0.05, 1.0
 
 
-def prefers(a: tuple[float, float], b: tuple[float, float], tie: float) -> bool:
-    """`_estimate.prefers` on (inlier fraction, RMS) pairs: whether b is preferred to a."""
-    return b[0] > a[0] + tie or (b[0] >= a[0] - tie and b[1] < a[1])
-
-
-def by_preference(fits, tie: float) -> int:
+def by_library_rule(fits) -> int:
+    """The fit `_estimate.prefers` keeps (more inliers, or within `FINE_TIE` the smaller RMS),
+    taking the live fits (some inliers) in order as the library's contests do."""
     best = None
-    for i, fit in enumerate(fits):
-        if fit[0] > 0 and (best is None or prefers(fits[best], fit, tie)):
-            best = i
-    return 0 if best is None else best
+    for i, (inliers, rms) in enumerate(fits):
+        fit = SimpleNamespace(inliers=inliers, rms=rms)
+        if inliers > 0 and (best is None or bool(prefers(best[1], fit))):
+            best = (i, fit)
+    return 0 if best is None else best[0]
+
+
+def by_inliers(fits) -> int:
+    """The larger inlier fraction, no tie band (equal fractions: the smaller RMS)."""
+    live = [i for i, (inliers, _) in enumerate(fits) if inliers > 0]
+    return max(live, key=lambda i: (fits[i][0], -fits[i][1]), default=0)
 
 
 def by_truncated_square(fits, gate_mm: float) -> int:
@@ -54,7 +59,7 @@ def by_truncated_square(fits, gate_mm: float) -> int:
 
 
 RULES = {
-    "inliers": lambda fits: by_preference(fits, 0.0),
+    "inliers": by_inliers,
     "truncated 3 cm": lambda fits: by_truncated_square(fits, 30.0),
     "truncated 1 cm": lambda fits: by_truncated_square(fits, 10.0),
 }
@@ -66,7 +71,7 @@ def compare(rows: list[dict]) -> dict:
     for row in rows:
         fits = list(zip(row["fits_inliers"][:-1], row["fits_rms_mm"][:-1], strict=True))
         rotation, centroid = row["fits_rotation_error_deg"], row["fits_centroid_error_cm"]
-        library = by_preference(fits, FINE_TIE)
+        library = by_library_rule(fits)
         level = row["label"].split()[1]
         for name, rule in RULES.items():
             pick = rule(fits)
