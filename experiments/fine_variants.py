@@ -1,7 +1,7 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
 `uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
-[--set anchors|cost|gates|edges|density|current|symmetric] [--seed 0] [--from-truth] [--only TEXT]`
+[--set anchors|cost|gates|edges|density|current|symmetric|stages] [--seed 0] [--from-truth] [--only TEXT]`
 
 `--set anchors` (the default): the planes' anchor (the default "hybrid", centroids everywhere,
 points everywhere), the noise-free polish and the within-the-noise stop. `--set cost`: what the
@@ -19,7 +19,8 @@ one-way residuals (the default) or two-way (`FineStage.symmetric`), each against
 previous side or every previous point (docs, Findings: two-way residuals). `--from-truth`
 runs the fine stage alone from each pair's true motion (`fine_refine`), so that the errors
 are those of the fine objective's own minimum; its "success" then counts the converged fits.
-`--only TEXT` runs only the variants whose name contains TEXT.
+`--set stages`: the default (no refine) or with `Config.refine` (docs, Findings: the refine in the
+default call). `--only TEXT` runs only the variants whose name contains TEXT.
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
 one compiled program per variant (capacities sized once for all pairs, so times are those of
@@ -150,7 +151,7 @@ def main():
     parser.add_argument(
         "--set",
         default="anchors",
-        choices=("anchors", "cost", "gates", "edges", "density", "current", "symmetric"),
+        choices=("anchors", "cost", "gates", "edges", "density", "current", "symmetric", "stages"),
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--from-truth", action="store_true")
@@ -233,6 +234,12 @@ def main():
                 dataclasses.replace(default, fine=dataclasses.replace(default.fine, symmetric=True, prev_points=2**20)),
                 {},
             ),
+        ]
+    if args.set == "stages":
+        with_refine = dataclasses.replace(default, refine=jp.Refine())
+        variants = [
+            ("default (no refine: the fine stage from the search's best)", default, {}),
+            ("Config(refine=Refine()): BFGS between the search and the fine stage", with_refine, {}),
         ]
     variants = [v for v in variants if args.only in v[0]]
     rows_of = truth_rows if args.from_truth else jaxpose_rows

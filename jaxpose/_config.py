@@ -234,6 +234,13 @@ class Refine(eqx.Module):
       objective's cost grows with the points (a close view has 20 000). With 4096 the
       realistic benchmark's pairs kept their errors (docs, Findings: cheaper stages of the
       public call).
+
+    `Config()` has no refine: the fine stage starts from the search's best directly. On three
+    draws of the realistic benchmark (448 pairs, σ 0–2 cm) the refine changed the pairs found
+    by one of 406 and no false success, and its gradient of the soft objective cost about 4 s
+    of the public program's compile and 10–30 ms of each call (docs, Findings: the refine in
+    the default call). `Config.fast()`, `wide()`, `capture()`, `tracking()` and `thorough()`
+    keep one.
     """
 
     solver: optx.AbstractMinimiser = optx.BFGS(rtol=REFINE_TOL, atol=REFINE_TOL)
@@ -269,9 +276,10 @@ class FineStage(eqx.Module):
       weak, and under range noise the planarity rank is mostly noise, so a fraction below
       1 drops points at random. `Config.paper()` and `Config.capture()` keep 0.7 (docs,
       Findings: planes at edges and corners).
-    - `guard`: the fine stage's result is dropped, and the refine's kept, when its hard score
-      is lower than the refine's by more than this (0–1; 1 = never dropped): on random views
-      the fit can slide along a face while the hard score falls from ≈ 0.9 to 0.6.
+    - `guard`: the fine stage's result is dropped, and the refine's kept (the search's best
+      where there is no refine, then reported not converged), when its hard score is lower
+      than that start's by more than this (0–1; 1 = never dropped): on random views the fit
+      can slide along a face while the hard score falls from ≈ 0.9 to 0.6.
     - `from_rest`: also run from p = 0 (no motion) and keep whichever result explains more of
       the current cloud (`better_fine`): over the small motions between frames the surface
       fit's own basin often holds the truth where the pattern search settled a few degrees off
@@ -499,7 +507,8 @@ class Config(eqx.Module):
     - `patterns`: [`Patterns`][jaxpose.Patterns].
     - `capacities`: [`Capacities`][jaxpose.Capacities].
     - `search`: [`GlobalSearch`][jaxpose.GlobalSearch].
-    - `refine`: [`Refine`][jaxpose.Refine] or None (the paper's method has none).
+    - `refine`: [`Refine`][jaxpose.Refine] or None (the default, and the paper's method, have
+      none; see `Refine` for why the default has none).
     - `fine`: [`FineStage`][jaxpose.FineStage] or None.
     - `thresholds`: [`Thresholds`][jaxpose.Thresholds].
     - `so3`: [`RotationSearch`][jaxpose.RotationSearch] or None (the default): the capture
@@ -537,7 +546,7 @@ class Config(eqx.Module):
             "patterns": Patterns() if patterns is None else patterns,
             "capacities": Capacities() if capacities is None else capacities,
             "search": GlobalSearch() if search is None else search,
-            "refine": Refine() if refine is _DEFAULT else refine,
+            "refine": None if refine is _DEFAULT else refine,
             "fine": FineStage() if fine is _DEFAULT else fine,
             "thresholds": Thresholds() if thresholds is None else thresholds,
             "so3": so3,
@@ -545,6 +554,8 @@ class Config(eqx.Module):
         if isinstance(sections["fine"], str):  # the flat `fine="none" | "point_to_plane"`
             legacy["fine"] = sections.pop("fine")
             sections["fine"] = FineStage()
+        if refine is _DEFAULT and {"local", "local_steps", "local_tol"} & set(legacy):
+            sections["refine"] = Refine()  # the flat configuration's default refine was BFGS
         if legacy:
             sections = _apply_legacy(sections, legacy)
         if sections["so3"] is not None and sections["fine"] is None:
@@ -641,7 +652,7 @@ class Config(eqx.Module):
         whole surface, and exact on noise-free pairs of flat faces; less accurate under range
         noise ([`FineStage`][jaxpose.FineStage]). The tests run it on the paper's pairs."""
         fine = FineStage(prev_slab=3.0, curr_slab=2.0, points=896, anchor="point", planar_fraction=0.7)
-        return cls(**{"fine": fine, **changes})
+        return cls(**{"refine": Refine(), "fine": fine, **changes})
 
     @classmethod
     def wide(cls, **changes) -> Config:

@@ -1,6 +1,6 @@
 """`estimate`: the displacement between two clouds, end to end, with a status.
 
-Problem → global search (CMA-ES) → local refine (soft objective) → fine stage (point-to-plane
+Problem → global search (CMA-ES) → local refine (soft objective; not in `Config()`) → fine stage (point-to-plane
 least squares, `_fine`) → hard score reported; the result is a `Status` item.
 """
 
@@ -89,7 +89,7 @@ class Hypotheses(eqx.Module):
       capture stage (`Config.so3`) its support, the share of the current points its surface
       fit explains times the share of the surface each view should see of the other that it
       does see (`jaxpose._capture.consistency`); otherwise the fine stage's inlier
-      fraction (0 for the estimate when the fine stage's result was dropped for the refine's,
+      fraction (0 for the estimate when the fine stage's result was dropped for its start's,
       1 for the single slot of a config without a fine stage). −1 in a slot without a
       hypothesis of its own.
     - `distinct`: `(k,)` whether the slot holds one (False: a repeat of a better one, or none).
@@ -124,13 +124,16 @@ class Estimate(eqx.Module):
     - `search`: the global stage's `GlobalResult` (best p and score before the refine, the
       best score of each CMA-ES generation of the first search of the restart that gave the
       result, evaluations, whether it ended at the box edge, re-centrings and restarts).
-    - `refine`: the local stage's `LocalResult` (its p, soft score, convergence and steps).
+    - `refine`: the local stage's `LocalResult` (its p, soft score, convergence and steps;
+      without a refine, `Config.refine` None, the search's best, its soft score, converged and
+      0 steps).
     - `fine`: the fine stage's `FineResult` (p, convergence, Gauss–Newton steps over
       all rounds, inlier fraction and inlier RMS point-to-plane residual in metres), or None
       when `Config.fine` is None.
     - `fine_kept`: whether `params` is the fine stage's result (False: no fine stage, or its
-      hard score fell more than `FineStage.guard` below the refine's, which then stands).
-    - `ambiguous`: two surface fits (from the refine's result and from rest,
+      hard score fell more than `FineStage.guard` below its start's, the refine's result or
+      the search's best, which then stands).
+    - `ambiguous`: two surface fits (from the refine's result or the search's best, and from rest,
       `FineStage.from_rest`) explain the current cloud equally well and their rotations differ
       by more than `Thresholds.ambiguous_deg`; with the capture stage, a distinct hypothesis
       is as consistent with both views as the best, within `RotationSearch.tie`. The result
@@ -463,8 +466,8 @@ def estimate_problem(
 
 
 def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None):
-    """CMA-ES in the search box, the refine, and the fine stage from the refine's result (and
-    from rest): the stages of every preset but `Config.capture()`."""
+    """CMA-ES in the search box, the refine where the config has one, and the fine stage from
+    their result (and from rest): the stages of every preset but `Config.capture()`."""
     glob = restarted_search(problem, config, key)
     loc = local_refine(problem, config, glob.params)
     p, converged = loc.params, loc.converged
@@ -493,13 +496,14 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
         # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
         # free it can slide along it (tens of centimetres along a face on random views). Its
         # result is kept unless the method's reference score drops by more than the guard;
-        # then the refine's result stands.
+        # then its start, the refine's result or the search's best, stands.
         fine_hard = hard_score(fine.params, problem)
         fine_kept = (fine_hard >= hard - config.fine.guard) & within_reach(fine.params, config)
         # When kept, the fine stage's convergence is the one that counts (BFGS on the soft
-        # objective may stop on a kink short of its tolerance and not matter).
+        # objective may stop on a kink short of its tolerance and not matter). Dropped without
+        # a refine, the estimate is the search's best on coarse cells: no converged fit.
         p = jnp.where(fine_kept, fine.params, p)
-        converged = jnp.where(fine_kept, fine.converged, converged)
+        converged = jnp.where(fine_kept, fine.converged, converged & (config.refine is not None))
         hard = jnp.where(fine_kept, fine_hard, hard)
         spread = jnp.where(fine_kept, fit_spread(fine, runs, fits), 0.0)
         candidates = (

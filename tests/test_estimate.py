@@ -356,7 +356,7 @@ def test_the_spread_of_equally_good_fits_counts_towards_uncertain(std_deg, sprea
 
 
 def test_the_paper_pair_has_no_spread(n5_estimate):
-    """The noise-free paper pair: the fits from the refine's result and from rest agree, so the
+    """The noise-free paper pair: the fits from the search's best and from rest agree, so the
     status keeps its success on the covariance alone."""
     assert float(n5_estimate.spread) < np.radians(0.01)
     assert bool(n5_estimate.success)

@@ -200,6 +200,12 @@ def test_flat_config_keywords_are_deprecated_aliases_of_the_sections():
         assert config.fine_points == 256 and config.local == "nelder_mead"
     with pytest.warns(DeprecationWarning):
         assert jp.Config(fine="none", local="none").fine is None
+    # The flat configuration's default had BFGS: a step limit alone still means that refine,
+    # although `Config()` itself has none.
+    assert jp.Config().refine is None
+    with pytest.warns(DeprecationWarning):
+        legacy = jp.Config(local_steps=30)
+    assert legacy.refine.max_steps == 30 and isinstance(legacy.refine.solver, optx.BFGS)
     with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="local must"):
         jp.Config(local="newton")
     with pytest.raises(TypeError, match="unexpected"):

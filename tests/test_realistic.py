@@ -204,12 +204,12 @@ def test_one_face_seen_head_on_is_accepted_and_found(head_on, accuracy_config):
     assert errors["found"], errors
 
 
-def test_a_close_view_larger_than_the_refine_is_exact(close_view, accuracy_config):
-    """A noise-free N5 view of ≈ 19 000 points (the realistic benchmark's second N5 pair): the
-    refine scores 4096 of them (`Refine.points`), and the default call still meets the
+def test_a_close_view_is_exact(close_view, accuracy_config):
+    """A noise-free N5 view of ≈ 19 000 points (the realistic benchmark's second N5 pair), more
+    than the fine stage fits (`FineStage.points`): the default call still meets the
     noise-free goal, 0.01° and 0.01 cm."""
     case = close_view
-    assert int(case.curr.num_valid) > 4 * jp.Refine().points
+    assert int(case.curr.num_valid) > 4 * accuracy_config.fine.points
     est = jp.estimate(case.prev, case.curr, accuracy_config, key=jax.random.key(1))
     errors = realistic.errors(case, est.rotation, est.translation)
     assert bool(est.success)
@@ -313,7 +313,7 @@ def test_two_way_residuals_move_the_fine_minimum_towards_the_truth():
 @pytest.mark.slow
 def test_a_confident_wrong_estimate_with_an_equally_good_fit_apart_is_no_success():
     """The realistic benchmark's satellite at σ 2 cm, #6, as the benchmark runs it (float32, its
-    key): the fits from the refine's result and from rest end 3.1° and 3.85° from the truth,
+    key): the fits from the search's best and from rest end about 3.1° and 3.85° from the truth,
     a local minimum each, with inlier fractions 0.007 apart; the estimate's covariance
     predicts 0.1°. The spread between the two fits (0.76° in the committed run) makes the
     status uncertain: never a confident wrong answer (`Estimate.spread`)."""
