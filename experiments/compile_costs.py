@@ -8,8 +8,9 @@ median of 9 warm runs:
 
 - **copies**: the program as it is, and with the soft objective, the hard objective, or both
   replaced by a stub (a program that gives wrong answers, timed only to see what the
-  objectives' traced copies cost to compile; the program traces the soft objective 5 times and
-  the hard one twice);
+  objectives' traced copies cost to compile; the default program traces the soft objective
+  twice, the search's batch and one batched evaluation of the estimate and the search's best,
+  and the hard one once, a batched evaluation of the fine stage's result and its start);
 - **all planes at once**: the objectives written over every cutting plane at once (`(P, M)`
   arrays, one gather and one scatter) instead of one traced block per plane, in the program;
 - **XLA options**: `xla_cpu_use_fusion_emitters=false`, `xla_cpu_use_thunk_runtime=false`,

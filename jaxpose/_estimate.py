@@ -469,17 +469,22 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
     """CMA-ES in the search box, the refine where the config has one, and the fine stage from
     their result (and from rest): the stages of every preset but `Config.capture()`."""
     glob = restarted_search(problem, config, key)
-    loc = local_refine(problem, config, glob.params)
-    p, converged = loc.params, loc.converged
-    hard = hard_score(p, problem)
+    if config.refine is None:
+        # No refine: `_finish` scores the search's best together with the estimate.
+        loc, p, converged = glob.params, glob.params, jnp.asarray(True)
+    else:
+        loc = local_refine(problem, config, glob.params)
+        p, converged = loc.params, loc.converged
     fine, fine_kept = None, jnp.asarray(False)
     ambiguous, alternative = jnp.asarray(False), p
     spread = jnp.zeros((), p.dtype)
     candidates = p[None], jnp.ones(1, p.dtype), jnp.ones(1, bool)
-    if config.fine is not None:
-        starts = [loc.params]
+    if config.fine is None:
+        hard = hard_score(p, problem)
+    else:
+        starts = [p]
         if config.fine.from_rest:
-            starts.append(jnp.zeros_like(loc.params) if guess is None else guess.astype(loc.params.dtype))
+            starts.append(jnp.zeros_like(p) if guess is None else guess.astype(p.dtype))
         turns = symmetry_turns(problem.frame, config) if config.fine.turn_deg > 0 else None
         runs = fine_passes(problem, config, jnp.stack(starts), turns)
         fine = other = _take(runs, 0)
@@ -497,7 +502,8 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
         # free it can slide along it (tens of centimetres along a face on random views). Its
         # result is kept unless the method's reference score drops by more than the guard;
         # then its start, the refine's result or the search's best, stands.
-        fine_hard = hard_score(fine.params, problem)
+        # Both hard scores in one batched evaluation: one traced copy of the objective.
+        hard, fine_hard = jax.vmap(hard_score, in_axes=(0, None))(jnp.stack([p, fine.params]), problem)
         fine_kept = (fine_hard >= hard - config.fine.guard) & within_reach(fine.params, config)
         # When kept, the fine stage's convergence is the one that counts (BFGS on the soft
         # objective may stop on a kink short of its tolerance and not matter). Dropped without
@@ -536,8 +542,7 @@ def _capture_stages(problem: Problem, config: Config):
         jnp.asarray(0, jnp.int32),
         jnp.asarray(0, jnp.int32),
     )
-    refined = cap.refined[0]
-    loc = LocalResult(refined, soft_score(refined, problem), jnp.asarray(True), jnp.asarray(0, jnp.int32))
+    loc = cap.refined[0]  # scored by `_finish` together with the estimate
     alternative = jnp.where(cap.distinct[1 + runner_up], rest[runner_up], p)
     candidates = (cap.params.at[0].set(p), cap.score, cap.distinct)
     fine_kept = jnp.all(jnp.isfinite(p))
@@ -578,7 +583,12 @@ def barely_held(hold: RotationHold, slide: SlideHold, config: Config) -> Bool[Ar
 def _finish(
     problem, config, glob, loc, p, converged, hard, fine, fine_kept, ambiguous, alternative, candidates, spread
 ) -> Estimate:
-    """The status (first matching condition of a fixed priority) and the estimate's fields."""
+    """The status (first matching condition of a fixed priority) and the estimate's fields.
+
+    `loc` is the refine's `LocalResult`, or, where no refine ran, the p (frame n) that holds its
+    place (the search's best, or the capture stage's best refined mode): that one is scored
+    here, in one batched evaluation with the estimate (one traced copy of the soft objective
+    in the program instead of two)."""
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
     covariance, uncertain, hold, slide = None, jnp.asarray(False), None, None
     if fine is not None:
@@ -601,13 +611,18 @@ def _finish(
     R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
     params, score, distinct = candidates
     params = jnp.where(jnp.all(jnp.isfinite(params), axis=1, keepdims=True), params, p[None])
+    if isinstance(loc, LocalResult):
+        soft = soft_score(p, problem)
+    else:
+        soft, start_soft = jax.vmap(soft_score, in_axes=(0, None))(jnp.stack([p, loc]), problem)
+        loc = LocalResult(loc, start_soft, jnp.asarray(True), jnp.asarray(0, jnp.int32))
     return Estimate(
         params=p,
         rotation=R,
         translation=t,
         frame=problem.frame,
         hard=jnp.where(finite, hard, 0.0),
-        soft=soft_score(p, problem),
+        soft=soft,
         result=result,
         search=glob,
         refine=loc,

@@ -216,6 +216,20 @@ def test_a_close_view_is_exact(close_view, accuracy_config):
     assert errors["rotation_error_deg"] < 0.01 and errors["centroid_error_cm"] < 0.01, errors
 
 
+def test_without_a_refine_its_slot_holds_the_search_best_and_its_soft_score(close_view, accuracy_config):
+    """`Config()` has no refine: `est.refine` is the search's best, scored on the full problem
+    (in one batched evaluation with the estimate), converged, with no steps."""
+    case = close_view
+    assert accuracy_config.refine is None
+    est = jp.estimate(case.prev, case.curr, accuracy_config, key=jax.random.key(1))
+    np.testing.assert_array_equal(np.asarray(est.refine.params), np.asarray(est.search.params))
+    assert int(est.refine.steps) == 0 and bool(est.refine.converged)
+    problem = jp.Problem.build(case.prev, case.curr, accuracy_config)
+    expected = jax.jit(jp.soft_score)(est.search.params, problem)
+    np.testing.assert_allclose(float(est.refine.score), float(expected), rtol=1e-9)
+    assert float(est.refine.score) != float(est.soft)  # two points scored, not one twice
+
+
 def test_a_kept_benchmark_pair_is_the_same_pair_as_in_the_whole_set():
     """`make_cases(keep=...)` simulates only the pairs whose label it accepts, each the same
     draw as in the whole set (its own seed), so a targeted experiment runs the benchmark's
