@@ -542,3 +542,20 @@ def test_the_boundary_passes_clouds_on_as_masked_floats():
     assert bool(jnp.all(jnp.isfinite(holes.floating().points)))
     batch = jp.Cloud(jnp.ones((2, 3, 3)), jnp.array([[True, False, True], [False, True, True]]))
     np.testing.assert_array_equal(np.asarray(batch.floating().points[:, :, 0]), [[1, 0, 1], [0, 1, 1]])
+
+
+def test_a_dropped_fine_result_without_a_refine_is_not_converged(paper_clouds):
+    """Without a refine, a fine-stage result that is dropped leaves the search's best on coarse
+    cells, which no fit converged on: `converged` is False. Here the fine stage's fit (the
+    paper's N5 variant 2, ≈ 12° from rest) lies beyond a ±1° box's reach (`within_reach`)."""
+    from jaxpose._estimate import _box_stages
+
+    box = jp.GlobalSearch(angle_box=np.radians(1.0), shift_box=0.01, recentre=0, population=8, generations=4)
+    config = jp.Config(search=box, capacities=CONFIG.capacities)
+    assert config.refine is None
+    problem = jp.Problem.build(paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"], config)
+    stages = eqx.filter_jit(_box_stages)(problem, config, jax.random.key(0))
+    glob, p, converged, fine_kept = stages[0], stages[2], stages[3], stages[6]
+    assert not bool(fine_kept)
+    np.testing.assert_array_equal(np.asarray(p), np.asarray(glob.params))
+    assert not bool(converged)
