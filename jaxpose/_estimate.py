@@ -1,7 +1,8 @@
 """`estimate`: the displacement between two clouds, end to end, with a status.
 
-Problem → global search (CMA-ES) → local refine (soft objective; not in `Config()`) → fine stage (point-to-plane
-least squares, `_fine`) → hard score reported; the result is a `Status` item.
+Problem → global search (CMA-ES) → local refine (soft objective; not in `Config()`) → fine
+stage (point-to-plane least squares, `_fine`) → hard score reported; the result is a `Status`
+item.
 """
 
 from __future__ import annotations
