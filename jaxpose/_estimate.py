@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import jaxlie
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from ._batch import score_batch
 from ._capture import capture_search
 from ._checks import is_concrete
 from ._cloud import Cloud
@@ -471,8 +472,10 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
     their result (and from rest): the stages of every preset but `Config.capture()`."""
     glob = restarted_search(problem, config, key)
     if config.refine is None:
-        # No refine: `_finish` scores the search's best together with the estimate.
-        loc, p, converged = glob.params, glob.params, jnp.asarray(True)
+        # No refine: `_finish` scores the search's best together with the estimate. That best
+        # lies on coarse cells: it counts as converged only where no fine stage follows it (the
+        # paper's method); a fine result dropped for it leaves no converged fit.
+        loc, p, converged = glob.params, glob.params, jnp.asarray(config.fine is None)
     else:
         loc = local_refine(problem, config, glob.params)
         p, converged = loc.params, loc.converged
@@ -503,14 +506,13 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
         # free it can slide along it (tens of centimetres along a face on random views). Its
         # result is kept unless the method's reference score drops by more than the guard;
         # then its start, the refine's result or the search's best, stands.
-        # Both hard scores in one batched evaluation: one traced copy of the objective.
-        hard, fine_hard = jax.vmap(hard_score, in_axes=(0, None))(jnp.stack([p, fine.params]), problem)
+        # Both hard scores in one batch: one traced copy of the objective.
+        hard, fine_hard = score_batch(jnp.stack([p, fine.params]), problem, "hard")
         fine_kept = (fine_hard >= hard - config.fine.guard) & within_reach(fine.params, config)
         # When kept, the fine stage's convergence is the one that counts (BFGS on the soft
-        # objective may stop on a kink short of its tolerance and not matter). Dropped without
-        # a refine, the estimate is the search's best on coarse cells: no converged fit.
+        # objective may stop on a kink short of its tolerance and not matter).
         p = jnp.where(fine_kept, fine.params, p)
-        converged = jnp.where(fine_kept, fine.converged, converged & (config.refine is not None))
+        converged = jnp.where(fine_kept, fine.converged, converged)
         hard = jnp.where(fine_kept, fine_hard, hard)
         spread = jnp.where(fine_kept, fit_spread(fine, runs, fits), 0.0)
         candidates = (
@@ -588,8 +590,8 @@ def _finish(
 
     `loc` is the refine's `LocalResult`, or, where no refine ran, the p (frame n) that holds its
     place (the search's best, or the capture stage's best refined mode): that one is scored
-    here, in one batched evaluation with the estimate (one traced copy of the soft objective
-    in the program instead of two)."""
+    here, in one batch with the estimate (one traced copy of the soft objective in the program
+    instead of two)."""
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
     covariance, uncertain, hold, slide = None, jnp.asarray(False), None, None
     if fine is not None:
@@ -615,7 +617,7 @@ def _finish(
     if isinstance(loc, LocalResult):
         soft = soft_score(p, problem)
     else:
-        soft, start_soft = jax.vmap(soft_score, in_axes=(0, None))(jnp.stack([p, loc]), problem)
+        soft, start_soft = score_batch(jnp.stack([p, loc]), problem, "soft")
         loc = LocalResult(loc, start_soft, jnp.asarray(True), jnp.asarray(0, jnp.int32))
     return Estimate(
         params=p,
