@@ -1,7 +1,8 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
 `uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
-[--set anchors|cost|gates|edges|density|current|symmetric|stages] [--seed 0] [--from-truth] [--only TEXT]`
+[--set anchors|cost|gates|edges|density|current|symmetric|stages|objective] [--seed 0] [--from-truth]
+[--peer-from-truth] [--by-target] [--only TEXT]`
 
 `--set anchors` (the default): the planes' anchor (the default "hybrid", centroids everywhere,
 points everywhere), the noise-free polish and the within-the-noise stop. `--set cost`: what the
@@ -20,7 +21,12 @@ previous side or every previous point (docs, Findings: two-way residuals). `--fr
 runs the fine stage alone from each pair's true motion (`fine_refine`), so that the errors
 are those of the fine objective's own minimum; its "success" then counts the converged fits.
 `--set stages`: the default (no refine) or with `Config.refine` (docs, Findings: the refine in the
-default call). `--only TEXT` runs only the variants whose name contains TEXT.
+default call). `--set objective`: the default against two-way residuals, 8192 points a side, both,
+and two-way residuals with planes through the points (the nearest to GICP's cost); with
+`--from-truth --peer-from-truth` GICP too starts from the true motion, so that both columns are
+where each cost is least near the truth (docs, Findings: the fine objective's minimum against
+GICP's). `--by-target` adds the median errors per target. `--only TEXT` runs only the variants
+whose name contains TEXT.
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
 one compiled program per variant (capacities sized once for all pairs, so times are those of
@@ -50,11 +56,13 @@ from jaxpose._programs import release_all
 from jaxpose.evaluation import realistic
 
 
-def gicp_rows(cases):
+def gicp_rows(cases, from_truth: bool = False):
+    """GICP on each case, from the identity, or from the true motion (`from_truth`)."""
     rows = []
     for case in cases:
+        start = (case.rotation, case.translation) if from_truth else None
         t0 = time.perf_counter()
-        R, t = realistic.gicp(case.prev.compact(), case.curr.compact())
+        R, t = realistic.gicp(case.prev.compact(), case.curr.compact(), start)
         rows.append({**realistic.errors(case, R, t), "ms": 1e3 * (time.perf_counter() - t0)})
     return rows
 
@@ -64,7 +72,7 @@ def benchmark_cases(args):
     (`args.pairs` per target and level, `args.seed`) and GICP's rows on those pairs."""
     levels = tuple(float(x) for x in args.levels.split(","))
     cases = realistic.make_cases(pairs=args.pairs, levels=levels, seed=args.seed)
-    return levels, cases, gicp_rows(cases)
+    return levels, cases, gicp_rows(cases, args.peer_from_truth)
 
 
 def jaxpose_rows(cases, config):
@@ -139,6 +147,20 @@ def report(name, cases, rows, gicp, compile_s, levels):
     print("  not found:", "; ".join(missed) or "none")
 
 
+def report_by_target(cases, rows, gicp, levels):
+    """Median rotation and centroid errors per target and noise level, jaxpose | GICP."""
+    for sigma in levels:
+        for target in dict.fromkeys(c.target for c in cases):
+            idx = [i for i, c in enumerate(cases) if c.sigma_cm == sigma and c.target == target]
+            ours, peer = [rows[i] for i in idx], [gicp[i] for i in idx]
+            line = " | ".join(
+                f"{statistics.median(r['rotation_error_deg'] for r in sel):.3f}°, "
+                f"{statistics.median(r['centroid_error_cm'] for r in sel):.3f} cm"
+                for sel in (ours, peer)
+            )
+            print(f"    σ {sigma} cm {target}: {line}")
+
+
 def fine_with(config, name: str, value):
     """`config.fine` with one setting changed."""
     return dataclasses.replace(config.fine, **{name: value})
@@ -151,11 +173,13 @@ def main():
     parser.add_argument(
         "--set",
         default="anchors",
-        choices=("anchors", "cost", "gates", "edges", "density", "current", "symmetric", "stages"),
+        choices=("anchors", "cost", "gates", "edges", "density", "current", "symmetric", "stages", "objective"),
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--from-truth", action="store_true")
     parser.add_argument("--only", default="", help="run only the variants whose name contains this")
+    parser.add_argument("--peer-from-truth", action="store_true", help="GICP from the true motion too")
+    parser.add_argument("--by-target", action="store_true", help="also print medians per target")
     args = parser.parse_args()
     levels, cases, gicp = benchmark_cases(args)
     default = jp.Config()
@@ -241,6 +265,22 @@ def main():
             ("default (no refine: the fine stage from the search's best)", default, {}),
             ("Config(refine=Refine()): BFGS between the search and the fine stage", with_refine, {}),
         ]
+    if args.set == "objective":
+        variants = [
+            ("default", default, {}),
+            ("FineStage(symmetric=True)", dataclasses.replace(default, fine=fine_with(default, "symmetric", True)), {}),
+            ("FineStage(points=8192)", dataclasses.replace(default, fine=fine_with(default, "points", 8192)), {}),
+            (
+                "FineStage(symmetric=True, points=8192)",
+                dataclasses.replace(default, fine=dataclasses.replace(default.fine, symmetric=True, points=8192)),
+                {},
+            ),
+            (
+                "FineStage(symmetric=True, anchor='point'): GICP-like",
+                dataclasses.replace(default, fine=dataclasses.replace(default.fine, symmetric=True, anchor="point")),
+                {},
+            ),
+        ]
     variants = [v for v in variants if args.only in v[0]]
     rows_of = truth_rows if args.from_truth else jaxpose_rows
     for name, config, constants in variants:
@@ -253,6 +293,8 @@ def main():
             for k, v in saved.items():
                 setattr(_fine, k, v)
         report(name, cases, rows, gicp, compile_s, levels)
+        if args.by_target:
+            report_by_target(cases, rows, gicp, levels)
 
 
 if __name__ == "__main__":

@@ -257,14 +257,19 @@ def _bucket(config) -> tuple[int, int, int, int]:
     return (c.max_points, c.max_prev_points, c.grid_cells, c.max_cells)
 
 
-def gicp(prev: np.ndarray, curr: np.ndarray):
+def gicp(prev: np.ndarray, curr: np.ndarray, start: tuple[np.ndarray, np.ndarray] | None = None):
     """small_gicp's GICP as a new user would call it: 5 mm voxels, 0.3 m correspondences, one
-    thread, from the identity."""
+    thread, from the identity, or from `start`, a motion (R, t) in the camera frame (metres),
+    x ↦ R x + t (e.g. the true one, to find where GICP's own cost is least)."""
     import small_gicp
 
+    init = np.eye(4)
+    if start is not None:
+        init[:3, :3], init[:3, 3] = np.asarray(start[0], float), np.asarray(start[1], float)
     result = small_gicp.align(
         np.asarray(curr, np.float64),
         np.asarray(prev, np.float64),
+        init_T_target_source=init,
         registration_type="GICP",
         downsampling_resolution=0.005,
         max_correspondence_distance=0.3,
