@@ -1,7 +1,7 @@
 """Fine-stage variants on a subset of the realistic benchmark, GICP on the same clouds.
 
 `uv run --extra peers python experiments/fine_variants.py [--pairs 3] [--levels 0,0.5,1,2]
-[--set anchors|cost|gates|edges|density|current|symmetric|stages|objective] [--seed 0] [--from-truth]
+[--set anchors|cost|gates|edges|density|current|symmetric|stages|objective|starts] [--seed 0] [--from-truth]
 [--peer-from-truth] [--by-target] [--only TEXT]`
 
 `--set anchors` (the default): the planes' anchor (the default "hybrid", centroids everywhere,
@@ -26,7 +26,9 @@ and two-way residuals with planes through the points (the nearest to GICP's cost
 `--from-truth --peer-from-truth` GICP too starts from the true motion, so that both columns are
 where each cost is least near the truth (docs, Findings: the fine objective's minimum against
 GICP's). `--by-target` adds the median errors per target. `--only TEXT` runs only the variants
-whose name contains TEXT.
+whose name contains TEXT. `--set starts`: the fine stage's starts as they are, or with the
+principal alignment nearest the identity as a third (`FineStage.from_principal`; docs,
+Findings: a start at the principal alignment).
 
 `--pairs` pairs per target and noise level (`jaxpose.evaluation.realistic.make_cases`, seed 0),
 one compiled program per variant (capacities sized once for all pairs, so times are those of
@@ -173,7 +175,18 @@ def main():
     parser.add_argument(
         "--set",
         default="anchors",
-        choices=("anchors", "cost", "gates", "edges", "density", "current", "symmetric", "stages", "objective"),
+        choices=(
+            "anchors",
+            "cost",
+            "gates",
+            "edges",
+            "density",
+            "current",
+            "symmetric",
+            "stages",
+            "objective",
+            "starts",
+        ),
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--from-truth", action="store_true")
@@ -278,6 +291,15 @@ def main():
             (
                 "FineStage(symmetric=True, anchor='point'): GICP-like",
                 dataclasses.replace(default, fine=dataclasses.replace(default.fine, symmetric=True, anchor="point")),
+                {},
+            ),
+        ]
+    if args.set == "starts":
+        variants = [
+            ("default (starts: the search's best and rest)", default, {}),
+            (
+                "FineStage(from_principal=True): also the principal alignment nearest the identity",
+                dataclasses.replace(default, fine=fine_with(default, "from_principal", True)),
                 {},
             ),
         ]

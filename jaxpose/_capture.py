@@ -180,6 +180,27 @@ def principal_alignments(problem: Problem) -> Float[Array, "24 3 3"]:
     return jnp.einsum("ij,sjk->sik", U, signed_permutations().astype(U.dtype))
 
 
+PRINCIPAL_START_POINTS = 1024
+"""Points of each surface that place [`principal_start`][]'s translation."""
+
+
+def principal_start(problem: Problem) -> Float[Array, "6"]:
+    """p (frame n, radians and metres) of the principal alignment nearest the identity (the
+    largest trace among [`principal_alignments`][]), with its `overlap_translation` (two
+    passes from the current centroid): the start of `FineStage.from_principal`. The two views'
+    inertia frames turn with the target wherever its principal moments are distinct, so over
+    the motions between frames this start lies near the truth where the pattern search and
+    rest both miss it (the moments' order and signs only matter far from the identity)."""
+    prev = previous_surface(problem, PRINCIPAL_START_POINTS)
+    curr, _ = current_surface(problem, PRINCIPAL_START_POINTS)
+    Gs = principal_alignments(problem)
+    G = Gs[jnp.argmax(jnp.trace(Gs, axis1=1, axis2=2))]
+    camera = camera_in_frame_n(problem)
+    guess = overlap_translation(G, current_centroid(problem), prev, curr, camera)
+    xyz = overlap_translation(G, guess, prev, curr, camera)
+    return jnp.concatenate([angles(G[None])[0], xyz])
+
+
 def candidate_displacements(
     problem: Problem, rotations: int, prev: Surface, curr: Surface
 ) -> tuple[Float[Array, "N 6"], Float[Array, "N 3 3"]]:

@@ -284,6 +284,13 @@ class FineStage(eqx.Module):
       the current cloud (`better_fine`): over the small motions between frames the surface
       fit's own basin often holds the truth where the pattern search settled a few degrees off
       (static).
+    - `from_principal`: also run from the alignment of the two clouds' principal frames
+      nearest the identity, with the translation that lines up the surface both views share
+      (`jaxpose._capture.principal_start`), and keep it where it explains the current cloud
+      better (the turned fits' contest, `jaxpose._estimate.contest`) (static). For views
+      where neither the search's best nor rest lies in the truth's basin. Off by default: on
+      two draws of the realistic benchmark (196 pairs) it found two pairs fewer, none more,
+      and made the call 10–75 ms longer (docs, Findings: a start at the principal alignment).
     - `turn_deg`, `symmetry_ratio`: when two principal moments of the previous cloud are
       within `symmetry_ratio` of each other (a nearly axisymmetric view: a cylinder, a disk),
       two more runs start from the best fit turned by ±`turn_deg` degrees about the third
@@ -357,6 +364,7 @@ class FineStage(eqx.Module):
     planar_fraction: Scalar = 1.0
     guard: Scalar = 0.05
     from_rest: bool = eqx.field(static=True, default=True)
+    from_principal: bool = eqx.field(static=True, default=False)
     turn_deg: float = eqx.field(static=True, default=15.0)
     symmetry_ratio: Scalar = 0.85
     points: int = eqx.field(static=True, default=4096)

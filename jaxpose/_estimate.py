@@ -14,7 +14,7 @@ import jaxlie
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._batch import score_batch
-from ._capture import capture_search
+from ._capture import capture_search, principal_start
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
@@ -489,6 +489,8 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
         starts = [p]
         if config.fine.from_rest:
             starts.append(jnp.zeros_like(p) if guess is None else guess.astype(p.dtype))
+        if config.fine.from_principal:
+            starts.append(principal_start(problem).astype(p.dtype))
         turns = symmetry_turns(problem.frame, config) if config.fine.turn_deg > 0 else None
         runs = fine_passes(problem, config, jnp.stack(starts), turns)
         fine = other = _take(runs, 0)
@@ -497,7 +499,8 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
             ambiguous = equally_good_and_apart(fine, rest, config)
             fine, other = better_fine(fine, rest), better_fine(rest, fine)
         fits = len(starts) + (0 if turns is None else turns.shape[0])
-        for i in range(len(starts), fits):
+        # The principal start, then the turned runs, each a challenger to the best so far.
+        for i in range(1 + config.fine.from_rest, fits):
             fine, other, ambiguous = contest(fine, other, ambiguous, _take(runs, i), config)
         alternative = other.params
         if config.fine.anchor != "point":
