@@ -189,8 +189,9 @@ def principal_start(problem: Problem) -> Float[Array, "6"]:
     largest trace among [`principal_alignments`][]), with its `overlap_translation` (two
     passes from the current centroid): the start of `FineStage.from_principal`. The two views'
     inertia frames turn with the target wherever its principal moments are distinct, so over
-    the motions between frames this start lies near the truth where the pattern search and
-    rest both miss it (the moments' order and signs only matter far from the identity)."""
+    the motions between frames this start can lie near the truth where the pattern search
+    and rest both miss it. Where two moments nearly tie (a cylinder seen from the side) its
+    turn about the third axis is arbitrary."""
     prev = previous_surface(problem, PRINCIPAL_START_POINTS)
     curr, _ = current_surface(problem, PRINCIPAL_START_POINTS)
     Gs = principal_alignments(problem)
