@@ -170,6 +170,15 @@ def overlap_translation(
     return jnp.where(usable, c_curr - G @ c_prev, xyz)
 
 
+def settled_translation(
+    G: Float[Array, "3 3"], centroid: Float[Array, "3"], prev: Surface, curr: Surface, camera: Float[Array, "3"]
+) -> Float[Array, "3"]:
+    """`overlap_translation` in two passes: from the current `centroid` (frame n, metres),
+    then from the first pass's result, so that what is in view follows the translation."""
+    guess = overlap_translation(G, centroid, prev, curr, camera)
+    return overlap_translation(G, guess, prev, curr, camera)
+
+
 def principal_alignments(problem: Problem) -> Float[Array, "24 3 3"]:
     """The rotations G^n_ν that carry the previous cloud's principal axes (the axes of frame n)
     onto the current cloud's, under each of the 24 orders and signs of the axes."""
@@ -186,8 +195,8 @@ PRINCIPAL_START_POINTS = 1024
 
 def principal_start(problem: Problem) -> Float[Array, "6"]:
     """p (frame n, radians and metres) of the principal alignment nearest the identity (the
-    largest trace among [`principal_alignments`][]), with its `overlap_translation` (two
-    passes from the current centroid): the start of `FineStage.from_principal`. The two views'
+    largest trace among [`principal_alignments`][]), with its [`settled_translation`][]:
+    the start of `FineStage.from_principal`. The two views'
     inertia frames turn with the target wherever its principal moments are distinct, so over
     the motions between frames this start can lie near the truth where the pattern search
     and rest both miss it. Where two moments nearly tie (a cylinder seen from the side) its
@@ -196,27 +205,20 @@ def principal_start(problem: Problem) -> Float[Array, "6"]:
     curr, _ = current_surface(problem, PRINCIPAL_START_POINTS)
     Gs = principal_alignments(problem)
     G = Gs[jnp.argmax(jnp.trace(Gs, axis1=1, axis2=2))]
-    camera = camera_in_frame_n(problem)
-    guess = overlap_translation(G, current_centroid(problem), prev, curr, camera)
-    xyz = overlap_translation(G, guess, prev, curr, camera)
-    return jnp.concatenate([angles(G[None])[0], xyz])
+    xyz = settled_translation(G, current_centroid(problem), prev, curr, camera_in_frame_n(problem))
+    return jnp.concatenate([angles(G), xyz])
 
 
 def candidate_displacements(
     problem: Problem, rotations: int, prev: Surface, curr: Surface
 ) -> tuple[Float[Array, "N 6"], Float[Array, "N 3 3"]]:
     """p of every candidate (frame n): `rotations` super-Fibonacci rotations and the 24
-    principal alignments, each with its `overlap_translation` (two passes, starting from the
-    current centroid), and the rotations G^n_ν themselves."""
+    principal alignments, each with its [`settled_translation`][], and the rotations G^n_ν
+    themselves."""
     Gs = jnp.concatenate([super_fibonacci(rotations).astype(problem.d.dtype), principal_alignments(problem)])
     camera = camera_in_frame_n(problem)
     centroid = current_centroid(problem)
-
-    def translation(G):
-        guess = overlap_translation(G, centroid, prev, curr, camera)
-        return overlap_translation(G, guess, prev, curr, camera)
-
-    xyz = jax.lax.map(translation, Gs, batch_size=256)
+    xyz = jax.lax.map(lambda G: settled_translation(G, centroid, prev, curr, camera), Gs, batch_size=256)
     return jnp.concatenate([angles(Gs), xyz], axis=1), Gs
 
 
