@@ -4,6 +4,8 @@ The points are binned into cubic voxels of edge h; their voxel keys (x, y, z bit
 significant) are sorted once. A query reads the 27 voxels around its own as 9 columns
 along z, each three voxels consecutive in key order: one `searchsorted` per column, then at
 most `slots` points of it, so a query costs 9·`slots` distances instead of one per point.
+The sorted points are kept as rows (x, y, z) (`VoxelGrid.rows`), so that a column's window
+is one contiguous block of memory.
 Every point within h of the query lies in those voxels, so the search is exact within h as
 long as no column holds more than `slots` points (h is sized from [`voxel_spacing`][]);
 farther points may be missed, which the fine stage treats as no match.
@@ -29,12 +31,13 @@ EMPTY = jnp.iinfo(jnp.int32).max
 
 class VoxelGrid(eqx.Module):
     """Points binned in voxels: `keys` sorted, `order` the point index of each sorted key,
-    `points` `(3, N)` the points in that sorted order (so that a column of voxels is one
-    contiguous run), `lo` the grid's corner (metres) and `size` the voxel edge h (metres)."""
+    `rows` `(N, 3)` the points in that sorted order, one row (x, y, z) each (so that a column
+    of voxels is one contiguous block), `lo` the grid's corner (metres) and `size` the voxel
+    edge h (metres)."""
 
     keys: Int[Array, " N"]
     order: Int[Array, " N"]
-    points: Float[Array, "3 N"]
+    rows: Float[Array, "N 3"]
     lo: Float[Array, "3"]
     size: Float[Array, ""]
 
@@ -56,7 +59,7 @@ def voxel_grid(points: Float[Array, "3 N"], valid: Bool[Array, " N"], size) -> V
     lo = jnp.where(jnp.isfinite(lo), lo, 0.0)
     keys = jnp.where(valid, _key(_coords(points, lo, size)), EMPTY)
     order = jnp.argsort(keys)
-    return VoxelGrid(keys[order], order.astype(jnp.int32), points[:, order], lo, size)
+    return VoxelGrid(keys[order], order.astype(jnp.int32), points[:, order].T, lo, size)
 
 
 class Candidates(NamedTuple):
@@ -72,8 +75,9 @@ class Candidates(NamedTuple):
 def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Candidates:
     """The points in the 27 voxels around each query: the 3 × 3 columns of voxels (x ± 1,
     y ± 1), each column's three voxels along z consecutive in key order, read as one
-    contiguous window of `slots` sorted points (a slice, not a gather per point: about 3×
-    faster on the 2-core CPU than gathering each candidate through `order`)."""
+    contiguous window of `slots` sorted points (a slice of rows, not a gather per point: about 3×
+    faster on the 2-core CPU than gathering each candidate through `order`, and rows (x, y, z)
+    read faster than the three coordinates' windows of a `(3, N)` array)."""
     c = _coords(queries, grid.lo, grid.size)
     top = 2**BITS - 1
     columns = jnp.asarray([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], jnp.int32).T  # (2, 9)
@@ -92,14 +96,12 @@ def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Can
     # A window that would run past the end is moved back to end there: it still holds every
     # point from `start` on, and the key test below drops the ones before it.
     start = jax.lax.optimization_barrier(jnp.minimum(start, n - slots).astype(jnp.int32))
-    points = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.points, (jnp.int32(0), i), (3, slots)))(
-        start
-    )  # (S·9, 3, slots)
-    keys = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.keys, (i,), (slots,)))(start)  # (S·9, slots)
     S = queries.shape[1]
-    points = points.reshape(S, 9, 3, slots)
-    real = (keys.reshape(S, 9, slots) >= first[..., None]) & (keys.reshape(S, 9, slots) <= last[..., None])
-    d2 = sum((points[:, :, k, :] - queries[k][:, None, None]) ** 2 for k in range(3))
+    rows = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.rows, (i, jnp.int32(0)), (slots, 3)))(start)
+    rows = rows.reshape(S, 9, slots, 3)  # (S, column, slot, x y z)
+    keys = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.keys, (i,), (slots,)))(start).reshape(S, 9, slots)
+    real = (keys >= first[..., None]) & (keys <= last[..., None])
+    d2 = sum((rows[..., k] - queries[k][:, None, None]) ** 2 for k in range(3))
     sorted_index = start.reshape(S, 9)[..., None] + jnp.arange(slots)[None, None]
     return Candidates(sorted_index.reshape(S, -1), real.reshape(S, -1), jnp.where(real, d2, jnp.inf).reshape(S, -1))
 
@@ -108,9 +110,21 @@ def nearest(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> tuple[
     """The nearest grid point of each query (index into the points the grid was built from)
     and its distance (metres; inf where the 27 voxels hold none)."""
     cand = candidates(grid, queries, slots)
-    best = jnp.argmin(cand.distance2, axis=1)
+    best, d2 = first_minimum(cand.distance2)
     pick = jnp.take_along_axis(cand.sorted_index, best[:, None], 1)[:, 0]
-    return grid.order[pick], jnp.sqrt(jnp.take_along_axis(cand.distance2, best[:, None], 1)[:, 0])
+    return grid.order[pick], jnp.sqrt(d2)
+
+
+def first_minimum(values: Float[Array, "S C"]) -> tuple[Int[Array, " S"], Float[Array, " S"]]:
+    """`jnp.argmin(values, axis=1)` (the first index of each row's minimum) and that minimum,
+    by two plain reductions: XLA:CPU vectorises a min and an integer min, not the paired
+    value-and-index reduction of `argmin`, which took as long as computing the 144 distances
+    of each query. A row of inf gives index 0, as `argmin` does; a row holding NaN gives a
+    NaN minimum (its index is then of no use, and the callers' `dist < reach` tests fail)."""
+    low = jnp.min(values, axis=1)
+    column = jax.lax.broadcasted_iota(jnp.int32, values.shape, 1)
+    first = jnp.min(jnp.where(values == low[:, None], column, values.shape[1] - 1), axis=1)
+    return first, low
 
 
 def k_nearest(
@@ -136,8 +150,8 @@ def nearest_in_graph(
     decides when a step is small enough (`jaxpose._fine.GRAPH_SHIFT`)."""
     cand = jnp.concatenate([guess[:, None], graph[guess]], axis=1)  # (S, k + 1)
     d2 = sum((points[k][cand] - queries[k][:, None]) ** 2 for k in range(3))
-    best = jnp.argmin(d2, axis=1)
-    return jnp.take_along_axis(cand, best[:, None], 1)[:, 0], jnp.sqrt(jnp.take_along_axis(d2, best[:, None], 1)[:, 0])
+    best, low = first_minimum(d2)
+    return jnp.take_along_axis(cand, best[:, None], 1)[:, 0], jnp.sqrt(low)
 
 
 def spread_subset(mask: Bool[Array, " N"], size: int) -> tuple[Int[Array, " size"], Bool[Array, " size"]]:
@@ -171,6 +185,7 @@ __all__ = [
     "Candidates",
     "VoxelGrid",
     "candidates",
+    "first_minimum",
     "k_nearest",
     "nearest",
     "nearest_in_graph",

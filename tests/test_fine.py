@@ -223,11 +223,23 @@ def test_two_way_residuals_need_the_whole_surface_and_are_off_by_default():
     cloud = jp.Cloud.from_points(pts.T + jnp.array([[0.0, 0.0, 5.0]]))
     config = jp.Config(capacities=jp.Capacities(max_points=4096))
     assert jp.Problem.build(cloud, cloud, config).fine_back is None
-    back = jp.Problem.build(cloud, cloud, dataclasses.replace(config, fine=jp.FineStage(symmetric=True))).fine_back
-    # The current side's planes are built as the previous side's: the same cloud, the same planes.
+    two_way = dataclasses.replace(config, fine=jp.FineStage(symmetric=True))
+    problem = jp.Problem.build(cloud, cloud, two_way)
+    back = problem.fine_back
+    # The current side's planes are built as the previous side's: on the same points in frame
+    # n, the same planes.
+    built = fine_cloud(problem.curr.T, problem.curr_valid, two_way, problem.planes, problem.d)
+    np.testing.assert_array_equal(np.asarray(back.valid), np.asarray(built.valid))
+    np.testing.assert_allclose(np.asarray(back.offsets), np.asarray(built.offsets), atol=1e-12)
+    # The same cloud as the previous side: its points in the current cloud's frame n differ
+    # from the previous side's by round-off (≈ 1e-16 m), which can move a point across a voxel
+    # boundary, and so change the 20 neighbours (searched among 27 voxels, wider than their
+    # exact reach) of a few points. Every plane but those few is the same.
     same = jp.Problem.build(cloud, cloud, config).fine
     np.testing.assert_array_equal(np.asarray(back.valid), np.asarray(same.valid))
-    np.testing.assert_allclose(np.asarray(back.offsets), np.asarray(same.offsets), atol=1e-12)
+    assert float(jnp.max(jnp.abs(back.points - same.points))) < 1e-12
+    differ = np.abs(np.asarray(back.offsets) - np.asarray(same.offsets)) > 1e-12
+    assert differ.sum() <= 0.005 * int(same.valid.sum()), int(differ.sum())
 
 
 def test_two_way_fits_recover_a_noise_free_motion_and_switch_off_to_the_one_way_fit(paper_clouds):

@@ -54,6 +54,19 @@ def test_voxel_grid_nearest_matches_brute_force_within_reach():
     np.testing.assert_allclose(kd2[within], exact5[within], rtol=1e-4, atol=1e-9)
 
 
+def test_first_minimum_is_argmin_with_ties_and_rows_of_inf():
+    # Rows as the neighbour searches make them: squared distances on a coarse lattice (many
+    # exact ties), inf for slots outside the query's voxels, and whole rows of inf.
+    rng = np.random.default_rng(4)
+    values = rng.integers(0, 6, (400, 37)).astype(np.float32) * 0.25
+    values[rng.uniform(size=values.shape) < 0.4] = np.inf
+    values[::7] = np.inf
+    index, low = neighbours.first_minimum(jnp.asarray(values))
+    np.testing.assert_array_equal(np.asarray(index), np.argmin(values, axis=1))
+    np.testing.assert_array_equal(np.asarray(low), values.min(axis=1))
+    assert np.all(np.asarray(index)[::7] == 0)
+
+
 def test_a_step_of_graph_descent_finds_the_nearest_of_a_query_that_moved_little():
     # A noisy sampled surface, its 20-nearest-neighbour graph, and queries that were nearest
     # to some point and then moved by half a sampling step: the new nearest is among the old
