@@ -534,8 +534,8 @@ def median_magnitude(r: Float[Array, " S"], keep: Bool[Array, " S"]) -> Float[Ar
         enough = jnp.sum(bits[None, :] <= mid[:, None], axis=1) >= ranks + 1
         return jnp.where(enough, lo, mid), jnp.where(enough, mid, hi)
 
-    finite_max = jax.lax.bitcast_convert_type(jnp.asarray(jnp.inf, r.dtype), itype)
-    start = (jnp.full(2, -1, itype), jnp.full(2, finite_max, itype))
+    inf_bits = jax.lax.bitcast_convert_type(jnp.asarray(jnp.inf, r.dtype), itype)
+    start = (jnp.full(2, -1, itype), jnp.full(2, inf_bits, itype))
     _, found = jax.lax.fori_loop(0, 8 * r.dtype.itemsize, halve, start)
     low, high = jax.lax.bitcast_convert_type(found, r.dtype)
     return jnp.where(n > 0, (low + high) * jnp.asarray(0.5, r.dtype), jnp.nan)
