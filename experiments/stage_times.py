@@ -9,9 +9,10 @@ default config sized from each pair (`sized_config`), the median of `repeats` wa
   voxel candidates of each of the previous side's points);
 - `nearest`: one round's matching, the nearest previous point of each current point;
 - `search`: the global search; `refine`, `refine_all`: the refine on `Refine.points` and on
-  every current point;
-- `fine`, `fine_rest`: the fine stage from the refine's result and from rest, with their
-  Gauss–Newton steps (all rounds);
+  every current point, where the config has a refine (the default has none: then the columns
+  are left out and the fine stage starts at the search's best);
+- `fine`, `fine_rest`: the fine stage from the refine's result (or the search's best) and
+  from rest, with their Gauss–Newton steps (all rounds);
 - `call`: the whole compiled build-and-estimate program.
 
     uv run python experiments/stage_times.py [pairs] [repeats] → results/stage_times.{json,md}
@@ -56,10 +57,11 @@ def stage_row(case, repeats: int) -> dict:
     key = jax.random.key(case.index)
     problem = build(case.prev, case.curr, config)
     glob = search(problem, config, key)
-    loc = refine(problem, config, glob.params)
-    all_points = dataclasses.replace(config, refine=dataclasses.replace(config.refine, points=None))
-    current, _ = select_current(problem, config, loc.params)
-    current = _moved(loc.params, current)
+    # The default config has no refine (`Config.refine` None): the fine stage starts at the search's best.
+    has_refine = config.refine is not None
+    start = refine(problem, config, glob.params).params if has_refine else glob.params
+    current, _ = select_current(problem, config, start)
+    current = _moved(start, current)
     no_fine = dataclasses.replace(config, fine=None)
     times = {
         "call": median_ms(lambda: _estimate_pair(case.prev, case.curr, config, key), repeats),
@@ -68,15 +70,17 @@ def stage_row(case, repeats: int) -> dict:
         "knn": median_ms(lambda: knn(problem.fine, config.fine.neighbours), repeats),
         "nearest": median_ms(lambda: match(problem.fine, current), repeats),
         "search": median_ms(lambda: search(problem, config, key), repeats),
-        "refine": median_ms(lambda: refine(problem, config, glob.params), repeats),
-        "refine_all": median_ms(lambda: refine(problem, all_points, glob.params), repeats),
-        "fine": median_ms(lambda: fine(problem, config, loc.params), repeats),
+        "fine": median_ms(lambda: fine(problem, config, start), repeats),
         "fine_rest": median_ms(lambda: fine(problem, config, jnp.zeros(6)), repeats),
     }
     steps = {
-        "fine_steps": int(fine(problem, config, loc.params).steps),
+        "fine_steps": int(fine(problem, config, start).steps),
         "fine_rest_steps": int(fine(problem, config, jnp.zeros(6)).steps),
     }
+    if has_refine:
+        all_points = dataclasses.replace(config, refine=dataclasses.replace(config.refine, points=None))
+        times["refine"] = median_ms(lambda: refine(problem, config, glob.params), repeats)
+        times["refine_all"] = median_ms(lambda: refine(problem, all_points, glob.params), repeats)
     return {
         "label": case.label,
         "current_points": int(case.curr.num_valid),
@@ -90,7 +94,7 @@ def markdown(rows: list[dict]) -> str:
     head = "| pair | current points | " + " | ".join(f"{c} ms" for c in COLUMNS) + " | fine steps (refine / rest) |"
     lines = [head, "|" + "---|" * (len(COLUMNS) + 3)]
     for r in rows:
-        cells = " | ".join(f"{r[c]:.1f}" for c in COLUMNS)
+        cells = " | ".join(f"{r[c]:.1f}" if c in r else "–" for c in COLUMNS)
         lines.append(f"| {r['label']} | {r['current_points']} | {cells} | {r['fine_steps']} / {r['fine_rest_steps']} |")
     return "\n".join(lines) + "\n"
 
