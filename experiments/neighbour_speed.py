@@ -6,7 +6,9 @@ For N5, the satellite, the upper stage and the mesh debris at σ = 0 and 1 cm
 - `call_ms`: the warm public call `jp.estimate(prev, curr, key=...)`, median of `repeats`
   after a first (compiling) call;
 - `searches`: how many voxel searches (`_neighbours.candidates` over the current points or
-  the previous side) one call runs, counted by a debug callback in a separate call;
+  the previous side) one call runs, counted by a debug callback in a separate call, and
+  `gathered`: how many of them searched only the points a finish round could not certify
+  (`_fine.CERTIFIED_BUFFER`: a quarter of the selected points, gathered);
 - `nearest_ms`, `k_nearest_ms`: one `nearest` of the fine stage's current points at the
   search's best, and the build's `k_nearest` (`FineStage.neighbours` of every previous-side
   point), each jitted alone, median of `repeats`;
@@ -37,15 +39,18 @@ from jaxpose.evaluation import realistic
 NAMES = ("n5", "satellite", "upper_stage", "debris")
 
 
-def count_searches(case, key) -> int:
-    """Voxel searches in one public call: a debug callback in `_neighbours.candidates`, traced
-    into the call's program (compiled anew: the programs are released before and after), counted
-    on its second run, so that the timed call runs a program without the callback."""
+def count_searches(case, key) -> tuple[int, int]:
+    """Voxel searches in one public call, all of them and those of a gathered subset of the
+    current points (fewer queries than the largest search): a debug callback in
+    `_neighbours.candidates`, traced into the call's program (compiled anew: the programs are
+    released before and after), counted on its second run, so that the timed call runs a
+    program without the callback."""
     counts = collections.Counter()
     original = _neighbours.candidates
 
     def counted(grid, queries, slots):
-        jax.debug.callback(lambda: counts.update(["search"]))
+        size = queries.shape[1]
+        jax.debug.callback(lambda: counts.update([size]))
         return original(grid, queries, slots)
 
     _neighbours.candidates = counted
@@ -57,12 +62,13 @@ def count_searches(case, key) -> int:
     finally:
         _neighbours.candidates = original
         _programs.release_all()
-    return counts["search"]
+    largest = max(counts, default=0)
+    return sum(counts.values()), sum(n for size, n in counts.items() if size < largest)
 
 
 def row(case, repeats: int) -> dict:
     key = jax.random.key(case.index)
-    searches = count_searches(case, key)
+    searches, gathered = count_searches(case, key)
     call = lambda: jp.estimate(case.prev, case.curr, key=key)  # noqa: E731
     est = call()
     jax.block_until_ready(est.params)
@@ -80,6 +86,7 @@ def row(case, repeats: int) -> dict:
         "label": case.label,
         "call_ms": call_ms,
         "searches": searches,
+        "gathered": gathered,
         "nearest_ms": 1e3 * time_call(lambda: nearest(queries), repeats=repeats)["median_s"],
         "k_nearest_ms": 1e3 * time_call(lambda: k_nearest(previous), repeats=repeats)["median_s"],
         "rotation_error_deg": err["rotation_error_deg"],
@@ -95,7 +102,7 @@ def main(pairs: int = 1, repeats: int = 9, label: str = "") -> None:
         rows.append(row(case, repeats))
         r = rows[-1]
         print(
-            f"{r['label']:20s} call {r['call_ms']:6.1f} ms  searches {r['searches']:2d}",
+            f"{r['label']:20s} call {r['call_ms']:6.1f} ms  searches {r['searches']:2d} ({r['gathered']} gathered)",
             f"nearest {r['nearest_ms']:5.2f} ms  k_nearest {r['k_nearest_ms']:5.2f} ms",
             f"rot {r['rotation_error_deg']:.4f}°  success {r['success']}",
             flush=True,

@@ -72,12 +72,19 @@ class Candidates(NamedTuple):
     distance2: Float[Array, "S C"]
 
 
-def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Candidates:
-    """The points in the 27 voxels around each query: the 3 × 3 columns of voxels (x ± 1,
-    y ± 1), each column's three voxels along z consecutive in key order, read as one
-    contiguous window of `slots` sorted points (a slice of rows, not a gather per point: about 3×
-    faster on the 2-core CPU than gathering each candidate through `order`, and rows (x, y, z)
-    read faster than the three coordinates' windows of a `(3, N)` array)."""
+class Windows(NamedTuple):
+    """Where each query's 9 columns of voxels lie in the grid's sorted order, `(S, 9)` each:
+    the keys of the column's lowest and highest voxels (`first`, `last`; EMPTY and -1 for a
+    column outside the grid) and the sorted position its window of `slots` points starts at."""
+
+    first: Int[Array, "S 9"]
+    last: Int[Array, "S 9"]
+    start: Int[Array, "S 9"]
+
+
+def windows(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Windows:
+    """The windows of the 3 × 3 columns of voxels (x ± 1, y ± 1) around each query, each
+    column's three voxels along z consecutive in key order (one `searchsorted` each)."""
     c = _coords(queries, grid.lo, grid.size)
     top = 2**BITS - 1
     columns = jnp.asarray([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], jnp.int32).T  # (2, 9)
@@ -88,22 +95,46 @@ def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Can
     first = jnp.where(inside, column | jnp.clip(z - 1, 0, top), EMPTY)
     last = jnp.where(inside, column | jnp.clip(z + 1, 0, top), -1)
     n = grid.keys.shape[0]
-    slots = min(slots, n)
     # The barriers keep XLA:CPU from fusing the key arithmetic into the search loop and the
     # search into the window reads, which made the lookup several times slower.
     first, last = jax.lax.optimization_barrier((first, last))
     start = jnp.searchsorted(grid.keys, first.ravel(), method="scan_unrolled")
     # A window that would run past the end is moved back to end there: it still holds every
-    # point from `start` on, and the key test below drops the ones before it.
-    start = jax.lax.optimization_barrier(jnp.minimum(start, n - slots).astype(jnp.int32))
+    # point from `start` on, and the key test of `candidates` drops the ones before it.
+    start = jax.lax.optimization_barrier(jnp.minimum(start, n - min(slots, n)).astype(jnp.int32))
+    return Windows(first, last, start.reshape(first.shape))
+
+
+def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Candidates:
+    """The points in the 27 voxels around each query ([`windows`][]), each column read as one
+    contiguous window of `slots` sorted points (a slice of rows, not a gather per point: about 3×
+    faster on the 2-core CPU than gathering each candidate through `order`, and rows (x, y, z)
+    read faster than the three coordinates' windows of a `(3, N)` array)."""
+    first, last, start = windows(grid, queries, slots)
+    slots = min(slots, grid.keys.shape[0])
     S = queries.shape[1]
-    rows = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.rows, (i, jnp.int32(0)), (slots, 3)))(start)
+    rows = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.rows, (i, jnp.int32(0)), (slots, 3)))(start.ravel())
     rows = rows.reshape(S, 9, slots, 3)  # (S, column, slot, x y z)
-    keys = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.keys, (i,), (slots,)))(start).reshape(S, 9, slots)
+    keys = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.keys, (i,), (slots,)))(start.ravel()).reshape(S, 9, slots)
     real = (keys >= first[..., None]) & (keys <= last[..., None])
     d2 = sum((rows[..., k] - queries[k][:, None, None]) ** 2 for k in range(3))
-    sorted_index = start.reshape(S, 9)[..., None] + jnp.arange(slots)[None, None]
+    sorted_index = start[..., None] + jnp.arange(slots)[None, None]
     return Candidates(sorted_index.reshape(S, -1), real.reshape(S, -1), jnp.where(real, d2, jnp.inf).reshape(S, -1))
+
+
+def exact_radius(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Float[Array, " S"]:
+    """The radius (metres) around each query within which [`candidates`][] reads every grid
+    point: the distance from the query to the faces of its 27 voxels (between h and 1.5 h),
+    or 0 where one of its columns holds more than `slots` points, some of which were not
+    read (the key just past that column's window still belongs to the column)."""
+    first, last, start = windows(grid, queries, slots)
+    n = grid.keys.shape[0]
+    after = start + min(slots, n)
+    overflow = (after < n) & (grid.keys[jnp.minimum(after, n - 1)] <= last)
+    offset = (queries - grid.lo[:, None]) / grid.size  # in voxels; the box is [c − 1, c + 2)
+    inner = offset - jnp.floor(offset)
+    to_faces = grid.size * (1 + jnp.min(jnp.minimum(inner, 1 - inner), axis=0))
+    return jnp.where(jnp.any(overflow, axis=1), 0.0, to_faces)
 
 
 def nearest(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> tuple[Int[Array, " S"], Float[Array, " S"]]:
@@ -137,6 +168,14 @@ def k_nearest(
     return grid.order[jnp.take_along_axis(cand.sorted_index, pos, 1)], -neg
 
 
+def graph_radius(grid: VoxelGrid, queries: Float[Array, "3 S"], d2: Float[Array, "S k"], slots: int) -> Float[Array, " S"]:
+    """The radius (metres) within which the `k_nearest` result `d2` of each query holds every
+    grid point: every point left out of a query's k nearest lies at least this far from it.
+    The k-th distance where the search was exact that far ([`exact_radius`][]), else the
+    exact radius (0 where a column overflowed). [`certified_in_graph`][] rests on it."""
+    return jnp.minimum(jnp.sqrt(d2[:, -1]), exact_radius(grid, queries, slots))
+
+
 def nearest_in_graph(
     points: Float[Array, "3 N"], graph: Int[Array, "N k"], guess: Int[Array, " S"], queries: Float[Array, "3 S"]
 ) -> tuple[Int[Array, " S"], Float[Array, " S"]]:
@@ -152,6 +191,28 @@ def nearest_in_graph(
     d2 = sum((points[k][cand] - queries[k][:, None]) ** 2 for k in range(3))
     best, low = first_minimum(d2)
     return jnp.take_along_axis(cand, best[:, None], 1)[:, 0], jnp.sqrt(low)
+
+
+def certified_in_graph(
+    points: Float[Array, "3 N"],
+    graph: Int[Array, "N k"],
+    radius: Float[Array, " N"],
+    guess: Int[Array, " S"],
+    queries: Float[Array, "3 S"],
+) -> tuple[Int[Array, " S"], Float[Array, " S"], Bool[Array, " S"], Float[Array, " S"]]:
+    """[`nearest_in_graph`][], with whether its answer is certainly the nearest of all the
+    points, and a lower bound of the nearest distance (metres).
+
+    Every point outside guess's neighbourhood lies at least r = `radius[guess]`
+    ([`graph_radius`][]) from guess, so at least r − |q − guess| from the query q. Where that
+    exceeds the distance d found among the neighbourhood, the answer is exact; in any case
+    the nearest of all lies at least min(d, r − |q − guess|) away."""
+    cand = jnp.concatenate([guess[:, None], graph[guess]], axis=1)  # (S, k + 1)
+    d2 = sum((points[k][cand] - queries[k][:, None]) ** 2 for k in range(3))
+    best, low = first_minimum(d2)
+    dist = jnp.sqrt(low)
+    outside = radius[guess] - jnp.sqrt(d2[:, 0])
+    return jnp.take_along_axis(cand, best[:, None], 1)[:, 0], dist, dist < outside, jnp.minimum(dist, outside)
 
 
 def spread_subset(mask: Bool[Array, " N"], size: int) -> tuple[Int[Array, " size"], Bool[Array, " size"]]:
@@ -184,12 +245,17 @@ def voxel_spacing(points: Float[Array, "3 N"], valid: Bool[Array, " N"], samples
 __all__ = [
     "Candidates",
     "VoxelGrid",
+    "Windows",
     "candidates",
+    "certified_in_graph",
+    "exact_radius",
     "first_minimum",
+    "graph_radius",
     "k_nearest",
     "nearest",
     "nearest_in_graph",
     "spread_subset",
     "voxel_grid",
     "voxel_spacing",
+    "windows",
 ]

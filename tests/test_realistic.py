@@ -95,6 +95,83 @@ def test_a_step_of_graph_descent_finds_the_nearest_of_a_query_that_moved_little(
     np.testing.assert_allclose(np.linalg.norm(pts[:, np.asarray(idx)] - far, axis=0), np.asarray(dist), rtol=1e-5)
 
 
+def _sheet(seed: int, count: int = 3000):
+    """A noisy, sampled bent sheet (SoA, float32) with 10 % of its points invalid."""
+    rng = np.random.default_rng(seed)
+    u, v = rng.uniform(-0.5, 0.5, (2, count))
+    pts = np.stack([u, v, 0.2 * np.abs(u) + 0.003 * rng.normal(size=u.size)]).astype(np.float32)
+    return rng, pts, rng.uniform(size=u.size) > 0.1
+
+
+@pytest.mark.parametrize("slots", [16, 2])
+def test_exact_radius_holds_every_point_the_search_reads_and_zero_where_a_column_overflows(slots):
+    # Every valid point within a query's exact radius is among its candidates (brute force);
+    # with 2 slots most of the sheet's columns overflow, and those queries' radius is 0.
+    rng, pts, valid = _sheet(5)
+    step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
+    grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
+    queries = (pts[:, :600] + 0.02 * rng.normal(size=(3, 600))).astype(np.float32)
+    radius = np.asarray(neighbours.exact_radius(grid, jnp.asarray(queries), slots))
+    cand = neighbours.candidates(grid, jnp.asarray(queries), slots)
+    read = np.asarray(grid.order)[np.asarray(cand.sorted_index)]
+    real = np.asarray(cand.real)
+    d = np.sqrt(((queries.T[:, None, :] - pts.T[None]) ** 2).sum(-1))
+    for i in range(queries.shape[1]):
+        inside = np.flatnonzero(valid & (d[i] < radius[i]))
+        assert set(inside) <= set(read[i][real[i]])
+    h = 2 * step
+    exact = radius > 0
+    assert np.all((radius[exact] >= h * (1 - 1e-5)) & (radius[exact] <= 1.5 * h * (1 + 1e-5)))
+    assert exact.mean() > 0.9 if slots == 16 else exact.mean() < 0.6
+
+
+def test_graph_radius_bounds_every_point_outside_the_neighbourhood():
+    # No valid point outside a point's k-nearest row lies nearer to it than its graph radius.
+    _, pts, valid = _sheet(6)
+    step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
+    grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
+    graph, d2 = neighbours.k_nearest(grid, jnp.asarray(pts), 20, 16)
+    radius = np.asarray(neighbours.graph_radius(grid, jnp.asarray(pts), d2, 16))
+    graph = np.asarray(graph)
+    assert np.median(radius[valid]) > 1.5 * step
+    d = np.sqrt(((pts.T[:, None, :] - pts.T[None]) ** 2).sum(-1))
+    for i in np.flatnonzero(valid)[:800]:
+        outside = valid.copy()
+        outside[graph[i]] = False
+        outside[i] = False
+        assert np.all(d[i][outside] >= radius[i] * (1 - 1e-5))
+
+
+def test_certified_graph_matches_are_the_nearest_and_the_bound_never_exceeds_it():
+    # Queries that moved by 0.3–3 sampling steps from their last nearest: where the graph step
+    # says "certain", its answer is the brute-force nearest; everywhere its bound is at most
+    # the nearest distance; most small moves are certified and few large ones are.
+    rng, pts, valid = _sheet(7)
+    step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
+    grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
+    graph, d2 = neighbours.k_nearest(grid, jnp.asarray(pts), 20, 16)
+    radius = neighbours.graph_radius(grid, jnp.asarray(pts), d2, 16)
+    radius = jnp.where(jnp.asarray(valid), radius, 0.0)
+    start = pts[:, valid][:, :500] + 0.2 * step * rng.normal(size=(3, 500)).astype(np.float32)
+    guess, _ = neighbours.nearest(grid, jnp.asarray(start), 16)
+    direction = rng.normal(size=(3, 500))
+    direction /= np.linalg.norm(direction, axis=0)
+    exact_of = lambda q: np.where(valid[None], np.sqrt(((q.T[:, None, :] - pts.T[None]) ** 2).sum(-1)), np.inf)  # noqa: E731
+    shares = []
+    for moves in (0.3, 3.0):
+        q = (start + moves * step * direction).astype(np.float32)
+        idx, dist, certain, bound = map(
+            np.asarray, neighbours.certified_in_graph(jnp.asarray(pts), graph, radius, guess, jnp.asarray(q))
+        )
+        exact = exact_of(q)
+        nearest = exact.min(1)
+        np.testing.assert_allclose(dist[certain], nearest[certain], rtol=1e-5)
+        np.testing.assert_array_equal(idx[certain], exact.argmin(1)[certain])
+        assert np.all(bound <= nearest * (1 + 1e-5) + 1e-7)
+        shares.append(certain.mean())
+    assert shares[0] > 0.5 and shares[1] < 0.2
+
+
 @pytest.mark.parametrize("count, line", [(3, False), (16, False), (60, True)])
 def test_voxel_grid_search_of_a_few_points_reads_windows_at_the_end_of_the_order(count, line):
     # Fewer points than slots, or a line of points a few per column: windows at the end of
