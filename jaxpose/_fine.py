@@ -59,6 +59,7 @@ from ._neighbours import (
     spread_subset,
     voxel_grid,
     voxel_spacing,
+    windows,
 )
 from ._poses import PARAMETER_SCALE
 from ._rotations import into_moved_frame, rotate_components, rotation
@@ -262,7 +263,8 @@ def neighbourhood_planes(
 ) -> Neighbourhoods:
     """The plane through the `k` nearest neighbours of each query (SoA) among `points`, the
     points `grid` was built from: centroid, scatter eigenvalues and normal."""
-    nb, d2 = k_nearest(grid, queries, k, NEIGHBOUR_SLOTS)
+    read = windows(grid, queries, NEIGHBOUR_SLOTS)
+    nb, d2 = k_nearest(grid, queries, k, NEIGHBOUR_SLOTS, read)
     found = jnp.isfinite(d2).astype(queries.dtype)  # neighbours within the search's reach
     hood = points[:, nb]  # (3, K, k)
     counts = jnp.maximum(jnp.sum(found, axis=1), 1)
@@ -272,7 +274,7 @@ def neighbourhood_planes(
     smallest, middle, normal, defined = smallest_eigen(scatter)
     enough = (jnp.sum(found, axis=1) >= 3) & defined
     index = jnp.where(jnp.isfinite(d2), nb, nb[:, :1])
-    radius = graph_radius(grid, queries, d2, NEIGHBOUR_SLOTS)
+    radius = graph_radius(grid, queries, d2, read, NEIGHBOUR_SLOTS)
     return Neighbourhoods(centroid[:, :, 0], smallest, middle, normal.T, enough, index, radius)
 
 
@@ -559,10 +561,10 @@ def _round_matches(fine: FineCloud, q, live, lasts, local, inlier):
     """The nearest previous point of each moved current point q (SoA, metres), its distance,
     and which points got an exact match: by the voxel search; where `local` (a traced
     boolean), by a step of graph descent from the last matches (`GRAPH_SHIFT`; inf where the
-    last voxel search had not reached the point; none exact); in the finish phase, by
-    [`_finish_matches`][]."""
+    last voxel search had not reached the point, `d_exact` inf; none exact); in the finish
+    phase, by [`_finish_matches`][]."""
     q = jax.lax.stop_gradient(q)
-    last, reached, q_exact, d_exact, finishing = lasts
+    last, q_exact, d_exact, finishing = lasts
 
     def search():
         index, dist = _match(q, fine)
@@ -570,7 +572,7 @@ def _round_matches(fine: FineCloud, q, live, lasts, local, inlier):
 
     def graph():
         index, dist = nearest_in_graph(fine.points, fine.graph, last, q)
-        return index, jnp.where(reached, dist, jnp.inf), jnp.zeros(q.shape[1], bool)
+        return index, jnp.where(jnp.isfinite(d_exact), dist, jnp.inf), jnp.zeros(q.shape[1], bool)
 
     def finish():
         return _finish_matches(fine, q, live, last, q_exact, d_exact, inlier)
@@ -852,16 +854,15 @@ def fine_refine(
         queried = queried & two_way
 
     def one_round(state):
-        # last: each point's last match; reached: whether the last voxel search found it one;
-        # q_exact, d_exact: where each point last got an exact match (a voxel search, or a
-        # finish round's) and its distance; finishing: the fit's finish phase.
+        # last: each point's last match; q_exact, d_exact: where each point last got an exact
+        # match (a voxel search, or a finish round's) and its distance (inf: the search found
+        # none in reach); finishing: the fit's finish phase.
         y, _, rounds, steps, _, lasts = state
-        last, reached, q_exact, d_exact, finishing = lasts
+        last, q_exact, d_exact, finishing = lasts
         q = _moved(y * scale, b)
         shift = jnp.max(jnp.where(live, jnp.sum((q - q_exact) ** 2, axis=0), 0.0))
         local = (rounds > 0) & (shift <= reach**2) & ~finishing
         index, dist, exact = _round_matches(fine, q, live, lasts, local, inlier)
-        reached = jnp.where(local, reached, jnp.isfinite(dist))
         matched, weight, near = _matches(fine, index, dist, live, inlier)
         r0 = _residuals(y * scale, b, matched, weight)
         w0 = _robust_weights(r0, weight)
@@ -891,7 +892,7 @@ def fine_refine(
         settled = small & ~local
         q_exact = jnp.where(exact[None], q, q_exact)
         d_exact = jnp.where(exact, dist, d_exact)
-        lasts = (index, reached, q_exact, d_exact, finishing | (small & local))
+        lasts = (index, q_exact, d_exact, finishing | (small & local))
         return y + step, settled, rounds + 1, steps + sol.stats["num_steps"], (matched, weight, near), lasts
 
     def more(state):
@@ -903,7 +904,7 @@ def fine_refine(
     shapes = jax.eval_shape(lambda: _correspond(start, b, live, fine, inlier))
     unmatched = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     S = b.shape[1]
-    lasts = (jnp.zeros(S, jnp.int32), jnp.zeros(S, bool), jnp.zeros_like(b), jnp.full(S, jnp.inf, dtype), jnp.asarray(False))
+    lasts = (jnp.zeros(S, jnp.int32), jnp.zeros_like(b), jnp.full(S, jnp.inf, dtype), jnp.asarray(False))
     state = (start / scale, jnp.asarray(False), jnp.asarray(0), jnp.asarray(0), unmatched, lasts)
     y, settled, _, steps, (matched, weight, near), _ = jax.lax.while_loop(more, one_round, state)
     p = y * scale

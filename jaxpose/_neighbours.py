@@ -105,12 +105,13 @@ def windows(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Window
     return Windows(first, last, start.reshape(first.shape))
 
 
-def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Candidates:
+def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int, found: Windows | None = None) -> Candidates:
     """The points in the 27 voxels around each query ([`windows`][]), each column read as one
     contiguous window of `slots` sorted points (a slice of rows, not a gather per point: about 3×
     faster on the 2-core CPU than gathering each candidate through `order`, and rows (x, y, z)
-    read faster than the three coordinates' windows of a `(3, N)` array)."""
-    first, last, start = windows(grid, queries, slots)
+    read faster than the three coordinates' windows of a `(3, N)` array). `found`: the
+    queries' windows where the caller has them already."""
+    first, last, start = windows(grid, queries, slots) if found is None else found
     slots = min(slots, grid.keys.shape[0])
     S = queries.shape[1]
     rows = jax.vmap(lambda i: jax.lax.dynamic_slice(grid.rows, (i, jnp.int32(0)), (slots, 3)))(start.ravel())
@@ -122,12 +123,13 @@ def candidates(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Can
     return Candidates(sorted_index.reshape(S, -1), real.reshape(S, -1), jnp.where(real, d2, jnp.inf).reshape(S, -1))
 
 
-def exact_radius(grid: VoxelGrid, queries: Float[Array, "3 S"], slots: int) -> Float[Array, " S"]:
+def exact_radius(grid: VoxelGrid, queries: Float[Array, "3 S"], found: Windows, slots: int) -> Float[Array, " S"]:
     """The radius (metres) around each query within which [`candidates`][] reads every grid
     point: the distance from the query to the faces of its 27 voxels (between h and 1.5 h),
     or 0 where one of its columns holds more than `slots` points, some of which were not
-    read (the key just past that column's window still belongs to the column)."""
-    first, last, start = windows(grid, queries, slots)
+    read (the key just past that column's window still belongs to the column). `found`: the
+    queries' [`windows`][]."""
+    _, last, start = found
     n = grid.keys.shape[0]
     after = start + min(slots, n)
     overflow = (after < n) & (grid.keys[jnp.minimum(after, n - 1)] <= last)
@@ -159,21 +161,34 @@ def first_minimum(values: Float[Array, "S C"]) -> tuple[Int[Array, " S"], Float[
 
 
 def k_nearest(
-    grid: VoxelGrid, queries: Float[Array, "3 S"], k: int, slots: int
+    grid: VoxelGrid, queries: Float[Array, "3 S"], k: int, slots: int, found: Windows | None = None
 ) -> tuple[Int[Array, "S k"], Float[Array, "S k"]]:
     """The k nearest grid points of each query among its 27 voxels (indices into the points
-    the grid was built from, and squared distances, inf for missing ones), nearest first."""
-    cand = candidates(grid, queries, slots)
+    the grid was built from, and squared distances, inf for missing ones), nearest first.
+    `found`: the queries' [`windows`][] where the caller has them already."""
+    cand = candidates(grid, queries, slots, found)
     neg, pos = jax.lax.top_k(-cand.distance2, k)
     return grid.order[jnp.take_along_axis(cand.sorted_index, pos, 1)], -neg
 
 
-def graph_radius(grid: VoxelGrid, queries: Float[Array, "3 S"], d2: Float[Array, "S k"], slots: int) -> Float[Array, " S"]:
+def graph_radius(
+    grid: VoxelGrid, queries: Float[Array, "3 S"], d2: Float[Array, "S k"], found: Windows, slots: int
+) -> Float[Array, " S"]:
     """The radius (metres) within which the `k_nearest` result `d2` of each query holds every
     grid point: every point left out of a query's k nearest lies at least this far from it.
     The k-th distance where the search was exact that far ([`exact_radius`][]), else the
-    exact radius (0 where a column overflowed). [`certified_in_graph`][] rests on it."""
-    return jnp.minimum(jnp.sqrt(d2[:, -1]), exact_radius(grid, queries, slots))
+    exact radius (0 where a column overflowed). `found`: the [`windows`][] the search read.
+    [`certified_in_graph`][] rests on it."""
+    return jnp.minimum(jnp.sqrt(d2[:, -1]), exact_radius(grid, queries, found, slots))
+
+
+def _graph_step(points, graph, guess, queries):
+    """The nearest of each query among `guess` and `graph[guess]` (index into `points`), its
+    distance, and the distance to `guess` itself (metres)."""
+    cand = jnp.concatenate([guess[:, None], graph[guess]], axis=1)  # (S, k + 1)
+    d2 = sum((points[k][cand] - queries[k][:, None]) ** 2 for k in range(3))
+    best, low = first_minimum(d2)
+    return jnp.take_along_axis(cand, best[:, None], 1)[:, 0], jnp.sqrt(low), jnp.sqrt(d2[:, 0])
 
 
 def nearest_in_graph(
@@ -187,10 +202,8 @@ def nearest_in_graph(
     distances replace the voxel search's 9·`slots`. Not exact in general (a query that moved
     farther than the neighbourhood's radius gets a near point, not the nearest); the caller
     decides when a step is small enough (`jaxpose._fine.GRAPH_SHIFT`)."""
-    cand = jnp.concatenate([guess[:, None], graph[guess]], axis=1)  # (S, k + 1)
-    d2 = sum((points[k][cand] - queries[k][:, None]) ** 2 for k in range(3))
-    best, low = first_minimum(d2)
-    return jnp.take_along_axis(cand, best[:, None], 1)[:, 0], jnp.sqrt(low)
+    index, dist, _ = _graph_step(points, graph, guess, queries)
+    return index, dist
 
 
 def certified_in_graph(
@@ -207,12 +220,9 @@ def certified_in_graph(
     ([`graph_radius`][]) from guess, so at least r − |q − guess| from the query q. Where that
     exceeds the distance d found among the neighbourhood, the answer is exact; in any case
     the nearest of all lies at least min(d, r − |q − guess|) away."""
-    cand = jnp.concatenate([guess[:, None], graph[guess]], axis=1)  # (S, k + 1)
-    d2 = sum((points[k][cand] - queries[k][:, None]) ** 2 for k in range(3))
-    best, low = first_minimum(d2)
-    dist = jnp.sqrt(low)
-    outside = radius[guess] - jnp.sqrt(d2[:, 0])
-    return jnp.take_along_axis(cand, best[:, None], 1)[:, 0], dist, dist < outside, jnp.minimum(dist, outside)
+    index, dist, to_guess = _graph_step(points, graph, guess, queries)
+    outside = radius[guess] - to_guess
+    return index, dist, dist < outside, jnp.minimum(dist, outside)
 
 
 def spread_subset(mask: Bool[Array, " N"], size: int) -> tuple[Int[Array, " size"], Bool[Array, " size"]]:

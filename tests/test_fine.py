@@ -450,6 +450,7 @@ def test_a_finish_round_has_the_voxel_search_matches(turn_deg):
     for mine, theirs in zip(
         _fine._matches(fine, jnp.asarray(index), jnp.asarray(dist), jnp.asarray(live), inlier)[1:],
         _fine._matches(fine, jnp.asarray(voxel_index), jnp.asarray(voxel_dist), jnp.asarray(live), inlier)[1:],
+        strict=True,
     ):
         np.testing.assert_array_equal(np.asarray(mine), np.asarray(theirs))
     if turn_deg < 1:

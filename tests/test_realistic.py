@@ -111,7 +111,8 @@ def test_exact_radius_holds_every_point_the_search_reads_and_zero_where_a_column
     step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
     grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
     queries = (pts[:, :600] + 0.02 * rng.normal(size=(3, 600))).astype(np.float32)
-    radius = np.asarray(neighbours.exact_radius(grid, jnp.asarray(queries), slots))
+    found = neighbours.windows(grid, jnp.asarray(queries), slots)
+    radius = np.asarray(neighbours.exact_radius(grid, jnp.asarray(queries), found, slots))
     cand = neighbours.candidates(grid, jnp.asarray(queries), slots)
     read = np.asarray(grid.order)[np.asarray(cand.sorted_index)]
     real = np.asarray(cand.real)
@@ -131,7 +132,8 @@ def test_graph_radius_bounds_every_point_outside_the_neighbourhood():
     step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
     grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
     graph, d2 = neighbours.k_nearest(grid, jnp.asarray(pts), 20, 16)
-    radius = np.asarray(neighbours.graph_radius(grid, jnp.asarray(pts), d2, 16))
+    found = neighbours.windows(grid, jnp.asarray(pts), 16)
+    radius = np.asarray(neighbours.graph_radius(grid, jnp.asarray(pts), d2, found, 16))
     graph = np.asarray(graph)
     assert np.median(radius[valid]) > 1.5 * step
     d = np.sqrt(((pts.T[:, None, :] - pts.T[None]) ** 2).sum(-1))
@@ -150,7 +152,7 @@ def test_certified_graph_matches_are_the_nearest_and_the_bound_never_exceeds_it(
     step = float(neighbours.voxel_spacing(jnp.asarray(pts), jnp.asarray(valid)))
     grid = neighbours.voxel_grid(jnp.asarray(pts), jnp.asarray(valid), 2 * step)
     graph, d2 = neighbours.k_nearest(grid, jnp.asarray(pts), 20, 16)
-    radius = neighbours.graph_radius(grid, jnp.asarray(pts), d2, 16)
+    radius = neighbours.graph_radius(grid, jnp.asarray(pts), d2, neighbours.windows(grid, jnp.asarray(pts), 16), 16)
     radius = jnp.where(jnp.asarray(valid), radius, 0.0)
     start = pts[:, valid][:, :500] + 0.2 * step * rng.normal(size=(3, 500)).astype(np.float32)
     guess, _ = neighbours.nearest(grid, jnp.asarray(start), 16)
