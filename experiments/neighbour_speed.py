@@ -48,10 +48,10 @@ def count_searches(case, key) -> tuple[int, int]:
     counts = collections.Counter()
     original = _neighbours.candidates
 
-    def counted(grid, queries, slots):
+    def counted(grid, queries, *rest):
         size = queries.shape[1]
         jax.debug.callback(lambda: counts.update([size]))
-        return original(grid, queries, slots)
+        return original(grid, queries, *rest)
 
     _neighbours.candidates = counted
     _programs.release_all()  # a program of the same bucket, compiled without the callback

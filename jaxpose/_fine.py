@@ -504,7 +504,9 @@ neighbourhood (≈ 2.5 steps across for 20 neighbours), and the points the searc
 a match are still beyond reach. The phases of a fit:
 
 - approach: the first round searches the voxels; a later round descends the graph while
-  the motion since the last search stays within the bound, and searches again past it;
+  the motion since the last search stays within the bound, and past it gets the voxel
+  search's matches again (certified where the graph proves them and searched elsewhere,
+  `CERTIFIED_BUFFER`);
 - finish: from the first graph round whose step is small enough to end the fit, every round
   has the voxel search's matches (proved by the graph where it can, `CERTIFIED_BUFFER`, and
   searched elsewhere), and only such a round ends it, as when every round searched.
@@ -520,28 +522,33 @@ for the voxel search in every round."""
 
 
 CERTIFIED_BUFFER = 4
-"""The finish rounds (`GRAPH_SHIFT`) match without a voxel search wherever they can prove the
-answer: one step of graph descent from each point's last match, kept where it is certainly
-the nearest (`_neighbours.certified_in_graph`: the point lies nearer to it than to anything
-outside its last match's neighbourhood, `FineCloud.radius`), or where the point certainly
-lies beyond `FineStage.inlier` of every previous point (so it is no inlier whatever its
-match). The rest, at most 1/this of the selected current points, go to the voxel search,
-gathered; with more, the whole round searches. So a finish round's matches are those the
-voxel search gives wherever that search reads every point within its reach, the answer
-whose equality the finish phase exists for, at a fraction of its cost (measured on the
-realistic benchmark's pairs near convergence: 60–98 % certified, 0–13 % beyond reach)."""
+"""Every round after a fit's first that does not descend the graph (`GRAPH_SHIFT`: the
+approach rounds past its bound and the finish rounds) matches without a voxel search
+wherever it can prove the answer: one step of graph descent from each point's last match,
+kept where it is certainly the nearest (`_neighbours.certified_in_graph`: the point lies
+nearer to it than to anything outside its last match's neighbourhood, `FineCloud.radius`),
+or, in a finish round, where the point certainly lies beyond `FineStage.inlier` of every
+previous point (so it is no inlier whatever its match; an approach round searches those
+too, since the graph rounds after it start from its matches). The rest, at most 1/this of
+the selected current points, go to the voxel search, gathered; with more, the whole round
+searches. So these rounds' matches are those the voxel search gives wherever that search
+reads every point within its reach, at a fraction of its cost (measured on the realistic
+benchmark's pairs near convergence: 60–98 % certified, 0–13 % beyond reach)."""
 
 
-def _finish_matches(fine: FineCloud, q, live, last, q_exact, d_exact, inlier):
-    """A finish round's matches ([`CERTIFIED_BUFFER`][]) of the moved current points q (SoA,
+def _finish_matches(fine: FineCloud, q, live, last, q_exact, d_exact, inlier, finishing):
+    """A certified round's matches ([`CERTIFIED_BUFFER`][]) of the moved current points q (SoA,
     metres): nearest index, distance, and which points got an exact match (certified or
     searched; the others are certainly beyond `inlier`). `q_exact`, `d_exact`: each point
     where it last got an exact match, and that match's distance (inf: none within the
-    search's reach, so at least the voxel edge away)."""
+    search's reach, so at least the voxel edge away). Only in the finish phase (`finishing`,
+    a traced boolean) are points certainly beyond `inlier` left unsearched: an approach
+    round's matches are where the graph rounds after it start from, so there every live
+    point gets the voxel search's match."""
     index, dist, certain, bound = certified_in_graph(fine.points, fine.graph, fine.radius, last, q)
     drift = jnp.sqrt(jnp.sum((q - q_exact) ** 2, axis=0))
     beyond = jnp.maximum(jnp.minimum(d_exact, fine.grid.size) - drift, bound) >= inlier
-    need = live & ~certain & ~beyond
+    need = live & ~certain & ~(beyond & finishing)
     S = q.shape[1]
     room = max(S // CERTIFIED_BUFFER, 1)
 
@@ -557,12 +564,14 @@ def _finish_matches(fine: FineCloud, q, live, last, q_exact, d_exact, inlier):
     return jax.lax.cond(jnp.sum(need) <= room, gathered, everywhere)
 
 
-def _round_matches(fine: FineCloud, q, live, lasts, local, inlier):
+def _round_matches(fine: FineCloud, q, live, lasts, local, first, inlier):
     """The nearest previous point of each moved current point q (SoA, metres), its distance,
-    and which points got an exact match: by the voxel search; where `local` (a traced
-    boolean), by a step of graph descent from the last matches (`GRAPH_SHIFT`; inf where the
-    last voxel search had not reached the point, `d_exact` inf; none exact); in the finish
-    phase, by [`_finish_matches`][]."""
+    and which points got an exact match: in a fit's `first` round (a traced boolean: no last
+    match to start from) by the voxel search; where `local` (a traced boolean), by a step of
+    graph descent from the last matches (`GRAPH_SHIFT`; inf where the last voxel search had
+    not reached the point, `d_exact` inf; none exact); in every other round, by
+    [`_finish_matches`][] (the voxel search's matches, certified where the graph proves
+    them)."""
     q = jax.lax.stop_gradient(q)
     last, q_exact, d_exact, finishing = lasts
 
@@ -575,9 +584,9 @@ def _round_matches(fine: FineCloud, q, live, lasts, local, inlier):
         return index, jnp.where(jnp.isfinite(d_exact), dist, jnp.inf), jnp.zeros(q.shape[1], bool)
 
     def finish():
-        return _finish_matches(fine, q, live, last, q_exact, d_exact, inlier)
+        return _finish_matches(fine, q, live, last, q_exact, d_exact, inlier, finishing)
 
-    mode = jnp.where(local, 1, jnp.where(finishing, 2, 0))
+    mode = jnp.where(first, 0, jnp.where(local, 1, 2))
     return jax.lax.switch(mode, (search, graph, finish))
 
 
@@ -862,7 +871,7 @@ def fine_refine(
         q = _moved(y * scale, b)
         shift = jnp.max(jnp.where(live, jnp.sum((q - q_exact) ** 2, axis=0), 0.0))
         local = (rounds > 0) & (shift <= reach**2) & ~finishing
-        index, dist, exact = _round_matches(fine, q, live, lasts, local, inlier)
+        index, dist, exact = _round_matches(fine, q, live, lasts, local, rounds == 0, inlier)
         matched, weight, near = _matches(fine, index, dist, live, inlier)
         r0 = _residuals(y * scale, b, matched, weight)
         w0 = _robust_weights(r0, weight)

@@ -239,6 +239,7 @@ def test_median_magnitude_is_nanmedian_bit_for_bit(dtype):
         assert same, (trial, ours, reference)
 
 
+@pytest.mark.slow  # an option off by default (`FineStage.symmetric`)
 def test_two_way_residuals_need_the_whole_surface_and_are_off_by_default():
     with pytest.raises(ValueError, match="prev_slab = curr_slab = inf"):
         jp.FineStage(prev_slab=3.0, symmetric=True)
@@ -267,6 +268,7 @@ def test_two_way_residuals_need_the_whole_surface_and_are_off_by_default():
     assert differ.sum() <= 0.005 * int(same.valid.sum()), int(differ.sum())
 
 
+@pytest.mark.slow  # an option off by default (`FineStage.symmetric`)
 def test_two_way_fits_recover_a_noise_free_motion_and_switch_off_to_the_one_way_fit(paper_clouds):
     """From a start 2° off on the paper's noise-free N5 pair, the two-way fit ends at the
     truth as the one-way fit does; with `two_way` false it is the one-way fit, step for step."""
@@ -426,7 +428,8 @@ def test_a_finish_round_has_the_voxel_search_matches(turn_deg):
     point, on a noisy realistic pair moved from where its last matches were made: the same
     nearest and distance wherever the round calls its match exact, no inlier elsewhere, the
     same inlier masks. A small move is certified mostly (the gathered search runs); a large
-    one is not (the whole round searches)."""
+    one is not (the whole round searches). An approach round's certified matches are the
+    voxel search's at every live point."""
     from jaxpose import _fine
     from jaxpose.evaluation import realistic
 
@@ -439,8 +442,14 @@ def test_a_finish_round_has_the_voxel_search_matches(turn_deg):
     b, live = _fine.select_current(problem, config, p0)
     q0, q1 = _fine._moved(p0, b), _fine._moved(p1, b)
     last, d0 = _fine._match(q0, fine)
-    index, dist, exact = jax.jit(_fine._finish_matches)(fine, q1, live, last, q0, d0, inlier)
+    certified = jax.jit(_fine._finish_matches)
+    index, dist, exact = certified(fine, q1, live, last, q0, d0, inlier, True)
     voxel_index, voxel_dist = _fine._match(q1, fine)
+    # An approach round (not finishing) leaves no live point unmatched: every one is exact.
+    a_index, a_dist, a_exact = map(np.asarray, certified(fine, q1, live, last, q0, d0, inlier, False))
+    assert a_exact[np.asarray(live)].all()
+    np.testing.assert_array_equal(a_index[np.asarray(live)], np.asarray(voxel_index)[np.asarray(live)])
+    np.testing.assert_allclose(a_dist[np.asarray(live)], np.asarray(voxel_dist)[np.asarray(live)], rtol=1e-6)
     index, dist, exact, live = map(np.asarray, (index, dist, exact, live))
     voxel_index, voxel_dist = np.asarray(voxel_index), np.asarray(voxel_dist)
     np.testing.assert_array_equal(index[exact & live], voxel_index[exact & live])

@@ -245,6 +245,7 @@ def test_track_needs_a_key_and_checks_its_inputs():
         track(bad, 0.04, key=jax.random.key(0))
 
 
+@pytest.mark.slow  # tracking; the default run checks the estimate's float32 path (tests/test_estimate.py)
 def test_track_runs_float32_clouds_in_the_sessions_precision():
     """Under `jax_enable_x64` (the tests' setting) a float32 sequence goes through `track`'s
     Python boundary as float64 (`Cloud.floating`): it traces, and every output is finite."""
