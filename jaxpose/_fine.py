@@ -536,7 +536,7 @@ reads every point within its reach, at a fraction of its cost (measured on the r
 benchmark's pairs near convergence: 60–98 % certified, 0–13 % beyond reach)."""
 
 
-def _finish_matches(fine: FineCloud, q, live, last, q_exact, d_exact, inlier, finishing):
+def _certified_matches(fine: FineCloud, q, live, last, q_exact, d_exact, inlier, finishing):
     """A certified round's matches ([`CERTIFIED_BUFFER`][]) of the moved current points q (SoA,
     metres): nearest index, distance, and which points got an exact match (certified or
     searched; the others are certainly beyond `inlier`). `q_exact`, `d_exact`: each point
@@ -570,7 +570,7 @@ def _round_matches(fine: FineCloud, q, live, lasts, local, first, inlier):
     match to start from) by the voxel search; where `local` (a traced boolean), by a step of
     graph descent from the last matches (`GRAPH_SHIFT`; inf where the last voxel search had
     not reached the point, `d_exact` inf; none exact); in every other round, by
-    [`_finish_matches`][] (the voxel search's matches, certified where the graph proves
+    [`_certified_matches`][] (the voxel search's matches, certified where the graph proves
     them)."""
     q = jax.lax.stop_gradient(q)
     last, q_exact, d_exact, finishing = lasts
@@ -583,11 +583,11 @@ def _round_matches(fine: FineCloud, q, live, lasts, local, first, inlier):
         index, dist = nearest_in_graph(fine.points, fine.graph, last, q)
         return index, jnp.where(jnp.isfinite(d_exact), dist, jnp.inf), jnp.zeros(q.shape[1], bool)
 
-    def finish():
-        return _finish_matches(fine, q, live, last, q_exact, d_exact, inlier, finishing)
+    def certified():
+        return _certified_matches(fine, q, live, last, q_exact, d_exact, inlier, finishing)
 
     mode = jnp.where(first, 0, jnp.where(local, 1, 2))
-    return jax.lax.switch(mode, (search, graph, finish))
+    return jax.lax.switch(mode, (search, graph, certified))
 
 
 def median_magnitude(r: Float[Array, " S"], keep: Bool[Array, " S"]) -> Float[Array, ""]:
@@ -864,7 +864,7 @@ def fine_refine(
 
     def one_round(state):
         # last: each point's last match; q_exact, d_exact: where each point last got an exact
-        # match (a voxel search, or a finish round's) and its distance (inf: the search found
+        # match (a voxel search, or a certified round's) and its distance (inf: the search found
         # none in reach); finishing: the fit's finish phase.
         y, _, rounds, steps, _, lasts = state
         last, q_exact, d_exact, finishing = lasts
@@ -896,7 +896,7 @@ def fine_refine(
             w0,
         )
         small = (moved <= ROUND_TOL) | (within_noise <= NOISE_STEP)
-        # Only a round whose matches are exact (a voxel search, or a finish round's
+        # Only a round whose matches are exact (a voxel search, or a certified round's
         # `CERTIFIED_BUFFER`) ends the fit (`GRAPH_SHIFT`).
         settled = small & ~local
         q_exact = jnp.where(exact[None], q, q_exact)

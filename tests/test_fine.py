@@ -442,16 +442,17 @@ def test_a_finish_round_has_the_voxel_search_matches(turn_deg):
     b, live = _fine.select_current(problem, config, p0)
     q0, q1 = _fine._moved(p0, b), _fine._moved(p1, b)
     last, d0 = _fine._match(q0, fine)
-    certified = jax.jit(_fine._finish_matches)
+    certified = jax.jit(_fine._certified_matches)
     index, dist, exact = certified(fine, q1, live, last, q0, d0, inlier, True)
     voxel_index, voxel_dist = _fine._match(q1, fine)
-    # An approach round (not finishing) leaves no live point unmatched: every one is exact.
-    a_index, a_dist, a_exact = map(np.asarray, certified(fine, q1, live, last, q0, d0, inlier, False))
-    assert a_exact[np.asarray(live)].all()
-    np.testing.assert_array_equal(a_index[np.asarray(live)], np.asarray(voxel_index)[np.asarray(live)])
-    np.testing.assert_allclose(a_dist[np.asarray(live)], np.asarray(voxel_dist)[np.asarray(live)], rtol=1e-6)
+    approach = map(np.asarray, certified(fine, q1, live, last, q0, d0, inlier, False))
     index, dist, exact, live = map(np.asarray, (index, dist, exact, live))
     voxel_index, voxel_dist = np.asarray(voxel_index), np.asarray(voxel_dist)
+    # An approach round (not finishing) leaves no live point unmatched: every one is exact.
+    a_index, a_dist, a_exact = approach
+    assert a_exact[live].all()
+    np.testing.assert_array_equal(a_index[live], voxel_index[live])
+    np.testing.assert_allclose(a_dist[live], voxel_dist[live], rtol=1e-6)
     np.testing.assert_array_equal(index[exact & live], voxel_index[exact & live])
     np.testing.assert_allclose(dist[exact & live], voxel_dist[exact & live], rtol=1e-6)
     rest = live & ~exact
