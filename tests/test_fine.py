@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 import jaxpose as jp
 from jaxpose._fine import (
+    POINT_WEIGHT,
     Matches,
     _moved,
     _residuals,
@@ -23,6 +24,7 @@ from jaxpose._fine import (
     fine_refine,
     median_magnitude,
     out_of_moved_frame,
+    point_terms,
     select_current,
     smallest_eigen,
     spread_subset,
@@ -573,6 +575,31 @@ def test_the_jitted_jacobian_of_the_residuals_matches_the_eager_one(size):
     jitted = np.asarray(jax.jit(jax.jacfwd(_residuals))(p, b, matched, weight))
     eager = np.asarray(jax.jacfwd(_residuals)(p, b, matched, weight))
     np.testing.assert_allclose(jitted, eager, atol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_the_point_terms_give_the_normal_equations_of_the_stacked_term(dtype):
+    # point_terms splits the point-to-point residuals into one leaf per axis (for XLA:CPU's
+    # JᵀJ); the Gauss–Newton system, JᵀJ and Jᵀr over the leaves, must be the stacked one's.
+    rng = np.random.default_rng(3)
+    b = jnp.asarray(rng.normal(size=(3, 4096)), dtype)
+    target = jnp.asarray(rng.normal(size=(3, 4096)), dtype)
+    root_w = jnp.asarray(rng.uniform(size=4096), dtype)
+    p = jnp.asarray([0.02, -0.03, 0.05, 0.1, -0.2, 0.05], dtype)
+
+    def split(p_):
+        return jnp.concatenate(point_terms(_moved(p_, b), target, root_w))
+
+    def stacked(p_):
+        return (POINT_WEIGHT * root_w[None] * (_moved(p_, b) - target)).ravel()
+
+    for f in (split, stacked):
+        assert jax.eval_shape(f, p).shape == (3 * 4096,)
+    J1, J2 = jax.jit(jax.jacfwd(split))(p), jax.jit(jax.jacfwd(stacked))(p)
+    r1, r2 = split(p), stacked(p)
+    tol = 1e-4 if dtype == jnp.float32 else 1e-10
+    np.testing.assert_allclose(J1.T @ J1, J2.T @ J2, rtol=tol, atol=tol * float(jnp.max(J2.T @ J2)))
+    np.testing.assert_allclose(J1.T @ r1, J2.T @ r2, rtol=tol, atol=tol * float(jnp.max(jnp.abs(J2.T @ r2))))
 
 
 def test_the_covariance_of_a_whole_surface_fit_of_6144_points_is_positive_definite():
