@@ -31,7 +31,7 @@ from jaxpose.evaluation import realistic
 
 def thunk_times(trace_dir: Path, repeats: int) -> list[dict]:
     """Per-call milliseconds and executions of each complete event in the Perfetto trace."""
-    (path,) = trace_dir.rglob("*.json.gz")
+    (path,) = trace_dir.rglob("perfetto_trace.json.gz")
     events = json.load(gzip.open(path))
     events = events["traceEvents"] if isinstance(events, dict) else events
     total, count = collections.Counter(), collections.Counter()
