@@ -15,7 +15,11 @@ prior, this stage replaces it (DECISIONS.md is silent on capture; the choices ar
    motion, where a local registration starts: a small turn lies in its basin even where the
    grid's best modes lead elsewhere), are fitted to the surface by two fine-stage passes on
    `RotationSearch.points` current points (a wide inlier gate that pulls the translation in,
-   then the configured gate).
+   then the configured gate). A mode starts with the translation of the FFT correlation of
+   the two clouds' occupancy grids at its rotation (`_alignment.correlation_translation`)
+   where that scores higher on the coarse problem than the refine's (`better_translation`):
+   on a large target after a large turn the overlap translation can lie tens of centimetres
+   off, beyond what the wide gate pulls in.
 4. **Half-turn twins** (`symmetric_candidates`): the best fitted hypothesis preceded by a half
    turn about each axis of the previous surface's normal tensor (`half_turns`), fitted the
    same way. The grid's scores favour the motion with the most shared surface, so the other
@@ -42,6 +46,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._alignment import cloud_extent, correlation_translation
 from ._batch import score_batch
 from ._config import Config
 from ._fine import NEIGHBOUR_VOXEL, fine_refine, neighbourhood_planes
@@ -311,7 +316,7 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
     refined_G = jax.vmap(lambda p: rotation(*p[:3]))(refined)
     top, filled = distinct_best(refined_scores, refined_G, so3.hypotheses, math.radians(so3.separation_deg), so3.modes)
     fit = _hypothesis_fit(problem, config, prev, curr, curr_grid)
-    starts = jnp.concatenate([refined[top], jnp.zeros((1, 6), refined.dtype)])  # the modes, then rest
+    starts = jnp.concatenate([better_translation(problem, refined[top]), jnp.zeros((1, 6), refined.dtype)])
     params, score, agree = fit(starts)
     score = jnp.where(jnp.concatenate([filled, jnp.ones(1, bool)]), score, -1.0)
     twins = symmetric_candidates(params[jnp.argmax(score)], prev)
@@ -334,6 +339,26 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
         starts,
         jnp.asarray(ps.shape[0], jnp.int32),
     )
+
+
+def with_correlated_translation(problem: Problem, p: Float[Array, "6"]) -> Float[Array, "6"]:
+    """p (frame n) with its translation replaced by the one that overlaps the fine stage's
+    previous points, turned by p's rotation, most with the current points
+    (`_alignment.correlation_translation`, over grids spanning twice the clouds' extent)."""
+    fine = problem.fine
+    extent = jnp.maximum(cloud_extent(fine.points, fine.valid), cloud_extent(problem.curr, problem.curr_valid))
+    G = rotation(p[0], p[1], p[2])
+    xyz = correlation_translation(G, fine.points, fine.valid, problem.curr, problem.curr_valid, extent)
+    return p.at[3:].set(xyz.astype(p.dtype))
+
+
+def better_translation(problem: Problem, ps: Float[Array, "m 6"]) -> Float[Array, "m 6"]:
+    """Each p (frame n) of `ps`, or the same rotation with its correlated translation
+    ([`with_correlated_translation`][]) where that scores higher on the coarse problem's hard
+    objective."""
+    moved = jax.lax.map(lambda p: with_correlated_translation(problem, p), ps)
+    kept, better = (score_batch(x, problem.search_problem, "hard") for x in (ps, moved))
+    return jnp.where((better > kept)[:, None], moved, ps)
 
 
 def _hypothesis_fit(problem: Problem, config: Config, prev: Surface, curr: Surface, curr_grid):

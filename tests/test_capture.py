@@ -205,6 +205,31 @@ def test_consistency_prefers_the_truth(large_turn, capture_config):
         assert score(wrong) < at_truth - 0.2
 
 
+def test_a_mode_start_takes_the_correlated_translation_where_it_scores_higher(large_turn, capture_config):
+    """At the fragment's true rotation after a 90–135° turn, a start 30 cm off along each axis
+    gets a translation within a correlation cell of the truth's (and a higher hard score); the
+    kept translation never scores lower than the start's."""
+    from jaxpose import _alignment as alignment
+    from jaxpose._batch import score_batch
+
+    problem = jp.Problem.build(large_turn.prev, large_turn.curr, capture_config)
+    truth = jp.displacement_from_motion(
+        problem.frame.origin, problem.frame.axes, large_turn.rotation, large_turn.translation
+    )
+    starts = jnp.stack([truth, truth.at[3:].add(0.3)])
+    kept = capture.better_translation(problem, starts)
+    fine = problem.fine
+    extent = max(
+        float(alignment.cloud_extent(fine.points, fine.valid)),
+        float(alignment.cloud_extent(problem.curr, problem.curr_valid)),
+    )
+    cell = alignment.CORRELATION_SPAN * extent / alignment.CORRELATION_CELLS
+    np.testing.assert_array_equal(np.asarray(kept[:, :3]), np.asarray(starts[:, :3]))
+    assert np.all(np.abs(np.asarray(kept[1, 3:] - truth[3:])) <= cell)
+    before, after = (np.asarray(score_batch(x, problem.search_problem, "hard")) for x in (starts, kept))
+    assert after[1] > before[1] and np.all(after >= before)
+
+
 def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn, capture_config):
     assert large_turn.motion_deg > 90
     est = jp.estimate(large_turn.prev, large_turn.curr, capture_config, key=jax.random.key(0))
