@@ -3,36 +3,19 @@ overlap count of its own occupancy grids, and the translation of two partial vie
 within a cell of the truth where the centroids' shift is not."""
 
 import itertools
-import math
 
 import jax.numpy as jnp
 import numpy as np
+from box_views import box_views
 
 from jaxpose import _alignment as alignment
-from jaxpose.evaluation import realistic
 
 
-def _box_views(seed=1):
-    """Points on the faces of a 1 m cube turned towards a camera on +z: the previous view, and
-    the current view of the cube moved by (G, xyz) (frame n, metres)."""
-    rng = np.random.default_rng(seed)
-    pts, nrm = [], []
-    for axis in range(3):
-        for sign in (1.0, -1.0):
-            p = rng.uniform(-0.5, 0.5, (3, 600))
-            p[axis] = 0.5 * sign
-            n = np.zeros((3, 600))
-            n[axis] = sign
-            pts.append(p)
-            nrm.append(n)
-    P, N = np.concatenate(pts, 1), np.concatenate(nrm, 1)
-    camera = np.array([0.3, -0.2, 5.0])
-    G = np.asarray(realistic._axis_angle(np.array([1.0, 2.0, 0.5]), math.radians(70.0)))
-    xyz = np.array([0.05, -0.12, 0.2])
-    B, M = G @ P + xyz[:, None], G @ N
-    prev = P[:, np.sum(N * (camera[:, None] - P), axis=0) > 0]
-    curr = B[:, np.sum(M * (camera[:, None] - B), axis=0) > 0]
-    return prev, curr, G, xyz
+def _box_views():
+    """The previous and current points of `box_views`' cube that face the camera, and the
+    motion (G, xyz) between them."""
+    v = box_views(600)
+    return v.P[:, v.seen_prev], v.B[:, v.seen_curr], v.G, v.xyz
 
 
 def _occupied(points, origin, cell, n):

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from box_views import box_views
 
 import jaxpose as jp
 from jaxpose import _capture as capture
@@ -71,23 +72,7 @@ def test_overlap_translation_is_exact_for_a_shared_surface():
     towards the camera, the current one moved by (G, xyz). Given xyz, the faces seen in both
     views are picked exactly and the translation comes back exactly; from a guess 10 cm off,
     two passes (as the capture stage runs it) come back within 2 cm."""
-    rng = np.random.default_rng(1)
-    pts, nrm = [], []
-    for axis in range(3):
-        for sign in (1.0, -1.0):
-            p = rng.uniform(-0.5, 0.5, (3, 400))
-            p[axis] = 0.5 * sign
-            n = np.zeros((3, 400))
-            n[axis] = sign
-            pts.append(p)
-            nrm.append(n)
-    P, N = np.concatenate(pts, 1), np.concatenate(nrm, 1)
-    camera = np.array([0.3, -0.2, 5.0])
-    G = np.asarray(realistic._axis_angle(np.array([1.0, 2.0, 0.5]), math.radians(70.0)))
-    xyz = np.array([0.05, -0.12, 0.2])
-    B, M = G @ P + xyz[:, None], G @ N
-    seen_prev = np.sum(N * (camera[:, None] - P), axis=0) > 0
-    seen_curr = np.sum(M * (camera[:, None] - B), axis=0) > 0
+    P, N, B, M, seen_prev, seen_curr, G, xyz, camera = box_views(400)
     prev = _surface(P[:, seen_prev], N[:, seen_prev])
     curr = _surface(B[:, seen_curr], M[:, seen_curr])
     G_, cam = jnp.asarray(G), jnp.asarray(camera)
