@@ -89,8 +89,9 @@ class CaptureResult(eqx.Module):
       `RotationSearch.separation_deg` of a better one: under range noise, fits from nearby
       modes land a degree or two apart and are one answer).
     - `grid_best`, `grid_score`: the best candidate of the grid and its coarse objective.
-    - `refined`: `(k, 6)` where each hypothesis's fit started: the coarse refine's result,
-      rest (zeros), or the twin's candidate.
+    - `refined`: `(k, 6)` where each hypothesis's fit started: the coarse refine's result
+      (with its correlated translation where that scores higher, `better_translation`), rest
+      (zeros), or the twin's candidate.
     - `evaluations`: objective evaluations of the grid.
     """
 
