@@ -15,8 +15,8 @@ levels, every bin), in the previous cloud's plane frame n:
   `RotationSearch.modes` (16) best distinct candidates, so a rank far past that means the
   truth's basin is not refined.
 - **translation error at the true rotation**: `_capture.settled_translation` (what the grid
-  uses) against `_alignment.correlation_translation` (one FFT cross-correlation of occupancy
-  grids), centimetres.
+  uses) against `_capture.correlated_translations` (`_alignment.correlation_translation`:
+  one FFT cross-correlation of occupancy grids), centimetres.
 - the warm time of the normal scores over the whole grid and of one correlation.
 
 The normal score is here, not in the library: a candidate, measured first. The correlated
@@ -37,11 +37,10 @@ from jaxtyping import Array, Float
 
 import jaxpose as jp
 from jaxpose import _capture as capture_stage
-from jaxpose._alignment import cloud_extent, correlation_translation
 from jaxpose._batch import score_batch
 from jaxpose._poses import displacement_from_motion
 from jaxpose._problem import _build, sized_config
-from jaxpose._rotations import rotation_angle, super_fibonacci
+from jaxpose._rotations import angles, rotation_angle, super_fibonacci
 from jaxpose.evaluation import capture
 
 NEAR_DEG = 15.0
@@ -97,10 +96,7 @@ def cues(prev, curr, config, p_true):
     of the timings below."""
     problem = _build(prev, curr, config)
     so3 = config.so3
-    surfaces = (
-        capture_stage.previous_surface(problem, so3.points),
-        capture_stage.current_surface(problem, so3.points)[0],
-    )
+    surfaces = surfaces_of(problem, so3.points)
     ps, Gs = capture_stage.candidate_displacements(problem, so3.rotations, *surfaces)
     pattern = score_batch(ps, problem.search_problem, so3.objective, chunk=64)
     normal = grid_normal_scores(problem, Gs, *surfaces)
@@ -112,8 +108,13 @@ def cues(prev, curr, config, p_true):
 
     camera, centroid = capture_stage.camera_in_frame_n(problem), capture_stage.current_centroid(problem)
     overlap = capture_stage.settled_translation(G_true, centroid, *surfaces, camera)
-    correlated = grid_correlation_translation(problem, G_true)
+    correlated = capture_stage.correlated_translations(problem, p_true[None])[0, 3:]
     return rank(pattern), rank(normal), jnp.linalg.norm(overlap - p_true[3:]), jnp.linalg.norm(correlated - p_true[3:])
+
+
+def surfaces_of(problem, size: int):
+    """The capture stage's previous and current surfaces, `size` points each."""
+    return capture_stage.previous_surface(problem, size), capture_stage.current_surface(problem, size)[0]
 
 
 def _prev_centroid(problem):
@@ -135,13 +136,6 @@ def grid_normal_scores(problem, Gs, prev, curr):
         _prev_centroid(problem),
         capture_stage.current_centroid(problem),
     )
-
-
-def grid_correlation_translation(problem, G):
-    """`_alignment.correlation_translation` of the fine stage's previous points and all current points."""
-    fine = problem.fine
-    extent = jnp.maximum(cloud_extent(fine.points, fine.valid), cloud_extent(problem.curr, problem.curr_valid))
-    return correlation_translation(G, fine.points, fine.valid, problem.curr, problem.curr_valid, extent)
 
 
 def warm_ms(fn, *args, repeats: int = 5) -> float:
@@ -191,14 +185,12 @@ def main(pairs: int = 3) -> None:
     case = next(c for c in cases if c.target == "satellite")
     config = sized_config(case.prev, case.curr, config0)
     problem = eqx.filter_jit(_build)(case.prev.floating(), case.curr.floating(), config)
-    surfaces = (
-        capture_stage.previous_surface(problem, config.so3.points),
-        capture_stage.current_surface(problem, config.so3.points)[0],
-    )
+    surfaces = surfaces_of(problem, config.so3.points)
     Gs = jnp.concatenate([super_fibonacci(config.so3.rotations), capture_stage.principal_alignments(problem)])
+    one_mode = jnp.concatenate([angles(Gs[0]), jnp.zeros(3, Gs.dtype)])[None]
     timings = {
         "normal_scores_grid_ms": warm_ms(eqx.filter_jit(grid_normal_scores), problem, Gs, *surfaces),
-        "correlation_translation_ms": warm_ms(eqx.filter_jit(grid_correlation_translation), problem, Gs[0]),
+        "correlation_translation_ms": warm_ms(eqx.filter_jit(capture_stage.correlated_translations), problem, one_mode),
     }
     modes = config0.so3.modes
     report = {

@@ -12,8 +12,9 @@ Frames: everything is in the previous cloud's plane frame n (metres, radians).
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Complex, Float
 
 CORRELATION_CELLS = 64
 """Cells along each axis of the occupancy grids of [`correlation_translation`][]."""
@@ -34,33 +35,49 @@ def _occupancy(points: Float[Array, "3 N"], valid: Bool[Array, " N"], origin, ce
     return jnp.minimum(counts, 1.0).reshape(n, n, n)
 
 
+class CorrelationTarget(eqx.Module):
+    """The current cloud's side of [`correlation_translation`][], built once for every
+    rotation tried (`correlation_target`): its centroid, the grid's corner and cell size
+    (frame n, metres) and the grid's occupancy spectrum (`rfftn`)."""
+
+    centroid: Float[Array, "3"]
+    origin: Float[Array, "3"]
+    cell: Float[Array, ""]
+    spectrum: Complex[Array, "C C H"]
+
+
+def _centroid(points: Float[Array, "3 N"], valid: Bool[Array, " N"]) -> Float[Array, "3"]:
+    return jnp.sum(jnp.where(valid[None], points, 0.0), axis=1) / jnp.maximum(jnp.sum(valid), 1)
+
+
+def correlation_target(
+    curr_points: Float[Array, "3 M"], curr_valid: Bool[Array, " M"], extent: Float[Array, ""]
+) -> CorrelationTarget:
+    """The [`CorrelationTarget`][] of the current points: a `CORRELATION_CELLS`³ grid spanning
+    `CORRELATION_SPAN` × `extent` (metres), centred on their centroid."""
+    n = CORRELATION_CELLS
+    centroid = _centroid(curr_points, curr_valid)
+    cell = CORRELATION_SPAN * jnp.maximum(extent, jnp.finfo(curr_points.dtype).eps) / n
+    origin = centroid - cell * n / 2
+    spectrum = jnp.fft.rfftn(_occupancy(curr_points, curr_valid, origin, cell))
+    return CorrelationTarget(centroid, origin, cell, spectrum)
+
+
 def correlation_translation(
-    G: Float[Array, "3 3"],
-    prev_points: Float[Array, "3 K"],
-    prev_valid: Bool[Array, " K"],
-    curr_points: Float[Array, "3 M"],
-    curr_valid: Bool[Array, " M"],
-    extent: Float[Array, ""],
+    G: Float[Array, "3 3"], prev_points: Float[Array, "3 K"], prev_valid: Bool[Array, " K"], target: CorrelationTarget
 ) -> Float[Array, "3"]:
     """The translation x (frame n, metres) for which the previous points turned by G, a ↦ G a + x,
-    overlap the current points most: the peak of the circular cross-correlation of their
-    occupancy grids (`CORRELATION_CELLS`³ cells spanning `CORRELATION_SPAN` × `extent`,
-    centred on the current centroid), after the turned previous centroid is put on the current
-    one. Accurate to about a cell (`extent` / 32 by default): a start for a surface fit."""
-    dtype = prev_points.dtype
+    overlap the current points of `target` most: the peak of the circular cross-correlation of
+    their occupancy grids, after the turned previous centroid is put on the current one.
+    Accurate to about a cell (`extent` / 32 by default): a start for a surface fit."""
     n = CORRELATION_CELLS
-    count = lambda valid: jnp.maximum(jnp.sum(valid), 1)  # noqa: E731
-    c_prev = jnp.sum(jnp.where(prev_valid[None], prev_points, 0.0), axis=1) / count(prev_valid)
-    c_curr = jnp.sum(jnp.where(curr_valid[None], curr_points, 0.0), axis=1) / count(curr_valid)
-    cell = CORRELATION_SPAN * jnp.maximum(extent, jnp.finfo(dtype).eps) / n
-    origin = c_curr - cell * n / 2
-    moved = G @ (prev_points - c_prev[:, None]) + c_curr[:, None]
-    a = _occupancy(moved, prev_valid, origin, cell)
-    b = _occupancy(curr_points, curr_valid, origin, cell)
-    corr = jnp.fft.irfftn(jnp.conj(jnp.fft.rfftn(a)) * jnp.fft.rfftn(b), s=a.shape)
-    shift = jnp.stack(jnp.unravel_index(jnp.argmax(corr), a.shape)).astype(dtype)
+    c_prev = _centroid(prev_points, prev_valid)
+    moved = G @ (prev_points - c_prev[:, None]) + target.centroid[:, None]
+    a = _occupancy(moved, prev_valid, target.origin, target.cell)
+    corr = jnp.fft.irfftn(jnp.conj(jnp.fft.rfftn(a)) * target.spectrum, s=a.shape)
+    shift = jnp.stack(jnp.unravel_index(jnp.argmax(corr), a.shape)).astype(prev_points.dtype)
     shift = jnp.where(shift > n // 2, shift - n, shift)  # circular shifts as signed offsets
-    return c_curr - G @ c_prev + cell * shift
+    return target.centroid - G @ c_prev + target.cell * shift
 
 
 def cloud_extent(points: Float[Array, "3 K"], valid: Bool[Array, " K"]) -> Float[Array, ""]:
@@ -72,4 +89,4 @@ def cloud_extent(points: Float[Array, "3 K"], valid: Bool[Array, " K"]) -> Float
     return jnp.where(jnp.isfinite(size), size, 0.0)
 
 
-__all__ = ["cloud_extent", "correlation_translation"]
+__all__ = ["CorrelationTarget", "cloud_extent", "correlation_target", "correlation_translation"]

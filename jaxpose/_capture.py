@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._alignment import cloud_extent, correlation_translation
+from ._alignment import cloud_extent, correlation_target, correlation_translation
 from ._batch import score_batch
 from ._config import Config
 from ._fine import NEIGHBOUR_VOXEL, fine_refine, neighbourhood_planes
@@ -342,22 +342,27 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
     )
 
 
-def with_correlated_translation(problem: Problem, p: Float[Array, "6"]) -> Float[Array, "6"]:
-    """p (frame n) with its translation replaced by the one that overlaps the fine stage's
-    previous points, turned by p's rotation, most with the current points
-    (`_alignment.correlation_translation`, over grids spanning twice the clouds' extent)."""
+def correlated_translations(problem: Problem, ps: Float[Array, "m 6"]) -> Float[Array, "m 6"]:
+    """Each p (frame n) of `ps` with its translation replaced by the one that overlaps the fine
+    stage's previous points, turned by p's rotation, most with the current points
+    (`_alignment.correlation_translation`, over grids spanning twice the clouds' extent; the
+    current side's grid is built once for all of them)."""
     fine = problem.fine
     extent = jnp.maximum(cloud_extent(fine.points, fine.valid), cloud_extent(problem.curr, problem.curr_valid))
-    G = rotation(p[0], p[1], p[2])
-    xyz = correlation_translation(G, fine.points, fine.valid, problem.curr, problem.curr_valid, extent)
-    return p.at[3:].set(xyz.astype(p.dtype))
+    target = correlation_target(problem.curr, problem.curr_valid, extent)
+
+    def one(p):
+        xyz = correlation_translation(rotation(p[0], p[1], p[2]), fine.points, fine.valid, target)
+        return p.at[3:].set(xyz.astype(p.dtype))
+
+    return jax.lax.map(one, ps)
 
 
 def better_translation(problem: Problem, ps: Float[Array, "m 6"]) -> Float[Array, "m 6"]:
     """Each p (frame n) of `ps`, or the same rotation with its correlated translation
-    ([`with_correlated_translation`][]) where that scores higher on the coarse problem's hard
+    ([`correlated_translations`][]) where that scores higher on the coarse problem's hard
     objective."""
-    moved = jax.lax.map(lambda p: with_correlated_translation(problem, p), ps)
+    moved = correlated_translations(problem, ps)
     kept, better = (score_batch(x, problem.search_problem, "hard") for x in (ps, moved))
     return jnp.where((better > kept)[:, None], moved, ps)
 

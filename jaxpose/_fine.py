@@ -797,9 +797,9 @@ def point_terms(moved: Float[Array, "3 S"], matched: Float[Array, "3 S"], root_w
     against their matched points (SoA), as three (S,) arrays, one per axis.
 
     Three leaves rather than one (3, S) array, for the Gauss–Newton step's JᵀJ: each leaf's
-    Jacobian block then comes out as (6, S), as the plane residuals' does, and XLA:CPU forms
-    its 6 × 6 product directly; the (3, S) leaf's block was copied into (6, 3S) and (3S, 6)
-    layouts first, and its product took about 12 times as long as the plane block's for 3
+    Jacobian block comes out as (6, S), as the plane residuals' does, and XLA:CPU forms its
+    6 × 6 product directly. A single (3, S) leaf's block is copied into (6, 3S) and (3S, 6)
+    layouts first, and its product takes about 12 times as long as the plane block's for 3
     times the rows (`experiments/call_profile.py`). The sum of squares is the same."""
     return tuple(POINT_WEIGHT * root_w * (moved[k] - matched[k]) for k in range(3))
 

@@ -31,14 +31,8 @@ def test_the_correlation_peak_is_the_shift_of_largest_overlap():
     prev, curr, G, _ = _box_views()
     valid_p, valid_c = np.ones(prev.shape[1], bool), np.ones(curr.shape[1], bool)
     extent = max(np.ptp(prev, axis=1).max(), np.ptp(curr, axis=1).max())
-    t = alignment.correlation_translation(
-        jnp.asarray(G),
-        jnp.asarray(prev),
-        jnp.asarray(valid_p),
-        jnp.asarray(curr),
-        jnp.asarray(valid_c),
-        jnp.asarray(extent),
-    )
+    target = alignment.correlation_target(jnp.asarray(curr), jnp.asarray(valid_c), jnp.asarray(extent))
+    t = alignment.correlation_translation(jnp.asarray(G), jnp.asarray(prev), jnp.asarray(valid_p), target)
     n = alignment.CORRELATION_CELLS
     cell = alignment.CORRELATION_SPAN * extent / n
     c_prev, c_curr = prev.mean(axis=1), curr.mean(axis=1)
@@ -61,9 +55,8 @@ def test_the_correlated_translation_of_two_partial_views_lies_within_a_cell():
     prev, curr, G, xyz = _box_views()
     valid_p, valid_c = np.ones(prev.shape[1], bool), np.ones(curr.shape[1], bool)
     extent = alignment.cloud_extent(jnp.asarray(curr), jnp.asarray(valid_c))
-    t = alignment.correlation_translation(
-        jnp.asarray(G), jnp.asarray(prev), jnp.asarray(valid_p), jnp.asarray(curr), jnp.asarray(valid_c), extent
-    )
+    target = alignment.correlation_target(jnp.asarray(curr), jnp.asarray(valid_c), extent)
+    t = alignment.correlation_translation(jnp.asarray(G), jnp.asarray(prev), jnp.asarray(valid_p), target)
     cell = alignment.CORRELATION_SPAN * float(extent) / alignment.CORRELATION_CELLS
     centroid_shift = curr.mean(axis=1) - G @ prev.mean(axis=1)
     assert np.linalg.norm(centroid_shift - xyz) > 3 * cell
