@@ -84,18 +84,15 @@ def row_of(case, est, figures) -> dict:
         for k in range(H.score.shape[0])
     )
     best = errors(case, est.rotation, est.translation)
-    row = {
-        "target": case.target,
-        "sigma_cm": case.sigma_cm,
-        "bin": f"{case.bin[0]:g}–{case.bin[1]:g}",
-        "pair": case.index,
-        "motion_deg": round(case.motion_deg, 1),
-        "found": best["found"],
-        "best_error_deg": round(best["rotation_error_deg"], 2),
-        "among": among,
-        "best_support": round(float(H.score[0]), 3),
+    row = capture._row(
+        case,
+        "jaxpose",
+        found=best["found"],
+        best_error_deg=round(best["rotation_error_deg"], 2),
+        among=among,
+        best_support=round(float(H.score[0]), 3),
         **{k: round(float(v), 3) for k, v in figures.items()},
-    }
+    )
     if not row["found"]:
         row["miss"] = "ranking" if among else "generation" if row["truth_support"] >= row["best_support"] else "support"
     return row
