@@ -37,6 +37,7 @@ from jaxtyping import Array, Float
 
 import jaxpose as jp
 from jaxpose import _capture as capture_stage
+from jaxpose._alignment import valid_centroid
 from jaxpose._batch import score_batch
 from jaxpose._poses import displacement_from_motion
 from jaxpose._problem import _build, sized_config
@@ -117,11 +118,6 @@ def surfaces_of(problem, size: int):
     return capture_stage.previous_surface(problem, size), capture_stage.current_surface(problem, size)[0]
 
 
-def _prev_centroid(problem):
-    valid = problem.fine.valid
-    return jnp.sum(jnp.where(valid[None], problem.fine.points, 0.0), axis=1) / jnp.maximum(jnp.sum(valid), 1)
-
-
 def grid_normal_scores(problem, Gs, prev, curr):
     """`normal_scores` of every grid rotation, on `NORMAL_POINTS` of each capture surface."""
     step = max(prev.points.shape[1] // NORMAL_POINTS, 1)
@@ -133,7 +129,7 @@ def grid_normal_scores(problem, Gs, prev, curr):
         curr.normals[:, ::step],
         curr.weights[::step],
         capture_stage.camera_in_frame_n(problem),
-        _prev_centroid(problem),
+        valid_centroid(problem.fine.points, problem.fine.valid),
         capture_stage.current_centroid(problem),
     )
 

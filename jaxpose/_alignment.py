@@ -46,7 +46,8 @@ class CorrelationTarget(eqx.Module):
     spectrum: Complex[Array, "C C H"]
 
 
-def _centroid(points: Float[Array, "3 N"], valid: Bool[Array, " N"]) -> Float[Array, "3"]:
+def valid_centroid(points: Float[Array, "3 N"], valid: Bool[Array, " N"]) -> Float[Array, "3"]:
+    """The centroid of the valid points (metres, their frame); the origin for none."""
     return jnp.sum(jnp.where(valid[None], points, 0.0), axis=1) / jnp.maximum(jnp.sum(valid), 1)
 
 
@@ -56,7 +57,7 @@ def correlation_target(
     """The [`CorrelationTarget`][] of the current points: a `CORRELATION_CELLS`³ grid spanning
     `CORRELATION_SPAN` × `extent` (metres), centred on their centroid."""
     n = CORRELATION_CELLS
-    centroid = _centroid(curr_points, curr_valid)
+    centroid = valid_centroid(curr_points, curr_valid)
     cell = CORRELATION_SPAN * jnp.maximum(extent, jnp.finfo(curr_points.dtype).eps) / n
     origin = centroid - cell * n / 2
     spectrum = jnp.fft.rfftn(_occupancy(curr_points, curr_valid, origin, cell))
@@ -71,7 +72,7 @@ def correlation_translation(
     their occupancy grids, after the turned previous centroid is put on the current one.
     Accurate to about a cell (`extent` / 32 by default): a start for a surface fit."""
     n = CORRELATION_CELLS
-    c_prev = _centroid(prev_points, prev_valid)
+    c_prev = valid_centroid(prev_points, prev_valid)
     moved = G @ (prev_points - c_prev[:, None]) + target.centroid[:, None]
     a = _occupancy(moved, prev_valid, target.origin, target.cell)
     corr = jnp.fft.irfftn(jnp.conj(jnp.fft.rfftn(a)) * target.spectrum, s=a.shape)
@@ -89,4 +90,4 @@ def cloud_extent(points: Float[Array, "3 K"], valid: Bool[Array, " K"]) -> Float
     return jnp.where(jnp.isfinite(size), size, 0.0)
 
 
-__all__ = ["CorrelationTarget", "cloud_extent", "correlation_target", "correlation_translation"]
+__all__ = ["CorrelationTarget", "cloud_extent", "correlation_target", "correlation_translation", "valid_centroid"]

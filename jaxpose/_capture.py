@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._alignment import cloud_extent, correlation_target, correlation_translation
+from ._alignment import cloud_extent, correlation_target, correlation_translation, valid_centroid
 from ._batch import score_batch
 from ._config import Config
 from ._fine import NEIGHBOUR_VOXEL, fine_refine, neighbourhood_planes
@@ -112,8 +112,7 @@ def camera_in_frame_n(problem: Problem) -> Float[Array, "3"]:
 
 def current_centroid(problem: Problem) -> Float[Array, "3"]:
     """The centroid of the valid current points (frame n, metres)."""
-    valid = problem.curr_valid
-    return jnp.sum(jnp.where(valid[None], problem.curr, 0.0), axis=1) / jnp.maximum(jnp.sum(valid), 1)
+    return valid_centroid(problem.curr, problem.curr_valid)
 
 
 def _towards(normals: Float[Array, "3 S"], points: Float[Array, "3 S"], camera: Float[Array, "3"]):
