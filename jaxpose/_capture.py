@@ -20,6 +20,11 @@ prior, this stage replaces it (DECISIONS.md is silent on capture; the choices ar
    where that scores higher on the coarse problem than the refine's (`better_translation`):
    on a large target after a large turn the overlap translation can lie tens of centimetres
    off, beyond what the wide gate pulls in.
+
+   **A second look** (`second_look`): the grid's next `RotationSearch.second_look` distinct
+   modes take the correlated translation before they are scored again, and the best of them
+   are refined and fitted too. Where the overlap translation lies far off, the rotation
+   nearest the truth ranks far down the grid and comes back once correlated.
 4. **Half-turn twins** (`symmetric_candidates`): the best fitted hypothesis preceded by a half
    turn about each axis of the previous surface's normal tensor (`half_turns`), fitted the
    same way. The grid's scores favour the motion with the most shared surface, so the other
@@ -29,8 +34,12 @@ prior, this stage replaces it (DECISIONS.md is silent on capture; the choices ar
    other that it does see). Either alone fails: a motion that maps a small part of the
    target onto itself is perfectly consistent on the little it predicts in view, and a
    motion that lays a large face onto another explains many points while its other faces
-   land where the other view sees nothing. `Estimate.ambiguous` compares the consistencies:
-   a symmetric target's equivalent motions are all consistent, whatever their overlap.
+   land where the other view sees nothing. A point hidden from the other view by nearer
+   surface (its range map, `jaxpose._visibility`) is not expected to be seen: without that,
+   a target whose parts hide one another made the truth look less consistent than the
+   motions its symmetries make equivalent, which differ in what they hide.
+   `Estimate.ambiguous` compares the consistencies: a symmetric target's equivalent motions
+   are all consistent, whatever their overlap.
 
 Frames: p and every point here are in the previous cloud's plane frame n (metres, radians);
 the camera, at the origin of frame c, is at −G^c_nᵀ O_n in frame n.
@@ -55,12 +64,19 @@ from ._poses import preceded_by_turn
 from ._problem import Problem
 from ._rotations import angles, rotation, rotation_angle, signed_permutations, super_fibonacci
 from ._search import local_refine
+from ._visibility import RangeMap, hidden, range_map, view_basis
 
 NORMAL_NEIGHBOURS = 12
 """Neighbours of a current point's normal in the overlap and consistency tests."""
 
 SLOTS = 16
 """Points each voxel holds for the neighbour searches of this module (`_neighbours`)."""
+
+OCCLUSION_MARGIN = 0.05
+"""A point more than this (metres) behind the nearest surface the other view saw in its
+direction is hidden from that view (`jaxpose._visibility.hidden`): several times the range
+noise of the benchmarks (σ up to 2 cm head-on) and the depth a surface at grazing incidence
+spans across a range-map cell."""
 
 GRAZING_COS = 0.25
 """A point's area weight is r² / max(|cos incidence|, this): the surface a pixel covers grows as
@@ -80,8 +96,9 @@ class CaptureResult(eqx.Module):
     """The capture stage's outcome (frame n, radians and metres).
 
     - `params`: `(k, 6)` the hypotheses' p, best first (fitted on `RotationSearch.points`):
-      k = `RotationSearch.hypotheses` fitted modes, the fit from rest and the three half-turn
-      twins.
+      k = `RotationSearch.hypotheses` fitted modes, the `RotationSearch.second_hypotheses` of
+      the second look (none where `second_look` is 0), the fit from rest and the three
+      half-turn twins.
     - `score`: `(k,)` their support (0–1, module docstring); −1 for a slot that repeats a
       better one.
     - `consistency`: `(k,)` their `consistency` (0–1); −1 for a repeat.
@@ -90,8 +107,8 @@ class CaptureResult(eqx.Module):
       modes land a degree or two apart and are one answer).
     - `grid_best`, `grid_score`: the best candidate of the grid and its coarse objective.
     - `refined`: `(k, 6)` where each hypothesis's fit started: the coarse refine's result
-      (with its correlated translation where that scores higher, `better_translation`), rest
-      (zeros), or the twin's candidate.
+      (with its correlated translation where that scores higher, `better_translation`), the
+      second look's refined mode, rest (zeros), or the twin's candidate.
     - `evaluations`: objective evaluations of the grid.
     """
 
@@ -273,20 +290,44 @@ def symmetric_candidates(p: Float[Array, "6"], prev: Surface) -> Float[Array, "3
     return jax.vmap(lambda S: preceded_by_turn(p, S, centre))(turns)
 
 
+def view_maps(problem: Problem) -> tuple[RangeMap, RangeMap]:
+    """The range maps (`jaxpose._visibility`) of the previous view (the fine stage's previous
+    points) and of the current view (all current points), frame n, in one tangent plane."""
+    camera = camera_in_frame_n(problem)
+    basis = view_basis(problem.fine.points, problem.fine.valid, camera)
+    return (
+        range_map(problem.fine.points, problem.fine.valid, camera, basis),
+        range_map(problem.curr, problem.curr_valid, camera, basis),
+    )
+
+
 def consistency(
-    problem: Problem, p: Float[Array, "6"], prev: Surface, curr: Surface, curr_grid, gate
+    problem: Problem,
+    p: Float[Array, "6"],
+    prev: Surface,
+    curr: Surface,
+    curr_grid,
+    gate,
+    views: tuple[RangeMap, RangeMap] | None = None,
 ) -> Float[Array, ""]:
-    """How well p explains both clouds (0–1): of the previous points that should face the camera
-    after the motion and the current points that should have faced it before, the fraction
-    that finds a point of the other cloud within `gate` metres (area-weighted). Self-occlusion
-    is not modelled, so the truth scores below 1 on a target that hides parts of itself."""
+    """How well p explains both clouds (0–1): of the previous points that should be seen after
+    the motion and the current points that should have been seen before, the fraction that
+    finds a point of the other cloud within `gate` metres (area-weighted). A point should be
+    seen when it faces the camera and the other view's range map (`views`, [`view_maps`][]
+    where None) does not put it more than `OCCLUSION_MARGIN` behind nearer surface: a
+    target's parts that hide one another then cost the truth nothing, while a wrong motion
+    still pays for the points it puts where the other view saw empty space or farther
+    surface."""
+    prev_map, curr_map = view_maps(problem) if views is None else views
     G = rotation(p[0], p[1], p[2])
     xyz = p[3:]
     camera = camera_in_frame_n(problem)
-    w_prev = prev.weights * _seen_after(G, xyz, prev, camera)
-    _, d_prev = nearest(curr_grid, G @ prev.points + xyz[:, None], SLOTS)
-    w_curr = curr.weights * _seen_before(G, xyz, curr, camera)
-    _, d_curr = nearest(problem.fine.grid, G.T @ (curr.points - xyz[:, None]), SLOTS)
+    moved = G @ prev.points + xyz[:, None]
+    back = G.T @ (curr.points - xyz[:, None])
+    w_prev = prev.weights * (_seen_after(G, xyz, prev, camera) & ~hidden(curr_map, moved, OCCLUSION_MARGIN))
+    _, d_prev = nearest(curr_grid, moved, SLOTS)
+    w_curr = curr.weights * (_seen_before(G, xyz, curr, camera) & ~hidden(prev_map, back, OCCLUSION_MARGIN))
+    _, d_curr = nearest(problem.fine.grid, back, SLOTS)
     hit = jnp.sum(w_prev * (d_prev < gate)) + jnp.sum(w_curr * (d_curr < gate))
     return hit / jnp.maximum(jnp.sum(w_prev) + jnp.sum(w_curr), jnp.finfo(p.dtype).tiny)
 
@@ -309,16 +350,21 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
     curr, curr_grid = current_surface(problem, so3.points)
     ps, Gs = candidate_displacements(problem, so3.rotations, prev, curr)
     scores = score_batch(ps, problem.search_problem, so3.objective, chunk=64)
-    modes, _ = distinct_best(scores, Gs, so3.modes, math.radians(so3.separation_deg), min(ps.shape[0], 64 * so3.modes))
-    # The refine reads only `Config.refine`, which the coarse config shares.
-    refined = jax.lax.map(lambda p: local_refine(problem.search_problem, config, p).params, ps[modes])
-    refined_scores = score_batch(refined, problem.search_problem, "soft")
-    refined_G = jax.vmap(lambda p: rotation(*p[:3]))(refined)
-    top, filled = distinct_best(refined_scores, refined_G, so3.hypotheses, math.radians(so3.separation_deg), so3.modes)
+    separation = math.radians(so3.separation_deg)
+    wanted = so3.modes + so3.second_look
+    chosen, chosen_filled = distinct_best(scores, Gs, wanted, separation, min(ps.shape[0], 64 * wanted))
+    refined = _refined(problem, config, ps[chosen[: so3.modes]])
+    top, filled = _best_distinct(problem, refined, so3.hypotheses, separation)
+    starts = [better_translation(problem, refined[top])]
+    slots = [filled]
+    if so3.second_look:
+        looked, looked_filled = second_look(problem, config, ps[chosen[so3.modes :]], chosen_filled[so3.modes :])
+        starts.append(looked)
+        slots.append(looked_filled)
     fit = _hypothesis_fit(problem, config, prev, curr, curr_grid)
-    starts = jnp.concatenate([better_translation(problem, refined[top]), jnp.zeros((1, 6), refined.dtype)])
+    starts = jnp.concatenate([*starts, jnp.zeros((1, 6), refined.dtype)])
     params, score, agree = fit(starts)
-    score = jnp.where(jnp.concatenate([filled, jnp.ones(1, bool)]), score, -1.0)
+    score = jnp.where(jnp.concatenate([*slots, jnp.ones(1, bool)]), score, -1.0)
     twins = symmetric_candidates(params[jnp.argmax(score)], prev)
     twin_params, twin_score, twin_agree = fit(twins)
     params, score, distinct, (agree, starts) = rank_distinct(
@@ -339,6 +385,44 @@ def capture_search(problem: Problem, config: Config) -> CaptureResult:
         starts,
         jnp.asarray(ps.shape[0], jnp.int32),
     )
+
+
+def _refined(problem: Problem, config: Config, ps: Float[Array, "m 6"]) -> Float[Array, "m 6"]:
+    """Each p (frame n) of `ps` refined on the coarse problem (`local_refine`; the refine reads
+    only `Config.refine`, which the coarse config shares)."""
+    return jax.lax.map(lambda p: local_refine(problem.search_problem, config, p).params, ps)
+
+
+def _best_distinct(problem: Problem, ps: Float[Array, "m 6"], k: int, separation) -> tuple:
+    """Indices of the `k` distinct best of `ps` (frame n) by the coarse problem's soft
+    objective ([`distinct_best`][], `separation` in radians), and which slots were filled."""
+    scores = score_batch(ps, problem.search_problem, "soft")
+    G = jax.vmap(lambda p: rotation(*p[:3]))(ps)
+    return distinct_best(scores, G, k, separation, ps.shape[0])
+
+
+def second_look(
+    problem: Problem, config: Config, ps: Float[Array, "m 6"], filled: Bool[Array, " m"]
+) -> tuple[Float[Array, "h 6"], Bool[Array, " h"]]:
+    """More hypotheses from the grid's next `RotationSearch.second_look` distinct modes `ps`
+    (frame n; `filled` marks the modes the grid had): each takes its correlated translation
+    ([`correlated_translations`][]) and is rescored on the coarse problem's hard objective; the
+    best `RotationSearch.second_refined` are refined, and the best
+    `RotationSearch.second_hypotheses` distinct of those are returned, with which slots were
+    filled.
+
+    Why: the grid's overlap translation lies tens of centimetres off after a large turn of a
+    large target, so the rotation nearest the truth can rank thousands of places down on the
+    grid's scores and then score among the best once correlated (docs, Capture at any
+    rotation: where the asymmetric misses come from). Correlating every grid rotation costs
+    about 5 ms each; these modes are the ones the grid ranks next."""
+    so3 = config.so3
+    moved = correlated_translations(problem, ps)
+    hard = jnp.where(filled, score_batch(moved, problem.search_problem, "hard"), -jnp.inf)
+    _, best = jax.lax.top_k(hard, so3.second_refined)
+    refined = _refined(problem, config, moved[best])
+    top, top_filled = _best_distinct(problem, refined, so3.second_hypotheses, math.radians(so3.separation_deg))
+    return refined[top], top_filled & filled[best][top]
 
 
 def correlated_translations(problem: Problem, ps: Float[Array, "m 6"]) -> Float[Array, "m 6"]:
@@ -372,10 +456,11 @@ def _hypothesis_fit(problem: Problem, config: Config, prev: Surface, curr: Surfa
     `consistency`; −1 where the fit is not finite) and its consistency."""
     wide, narrow = _hypothesis_configs(config)
     gate = jnp.asarray(config.fine.inlier, problem.d.dtype)
+    views = view_maps(problem)
 
     def one(p):
         fitted = fine_refine(problem, narrow, fine_refine(problem, wide, p).params)
-        agree = consistency(problem, fitted.params, prev, curr, curr_grid, gate)
+        agree = consistency(problem, fitted.params, prev, curr, curr_grid, gate, views)
         usable = jnp.all(jnp.isfinite(fitted.params))
         return fitted.params, jnp.where(usable, fitted.inliers * agree, -1.0), agree
 

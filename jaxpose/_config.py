@@ -185,6 +185,11 @@ class RotationSearch(eqx.Module):
     - `wide_inlier`, `wide_rounds`: inlier gate (metres) and rounds of a hypothesis's first
       surface fit, which pulls in a translation that the grid's overlap estimate left
       centimetres off (the second fit uses `FineStage.inlier`).
+    - `second_look`, `second_refined`, `second_hypotheses`: the grid's next `second_look`
+      distinct modes after `modes` take the translation of the FFT correlation and are
+      rescored; the best `second_refined` are refined and the best `second_hypotheses` of
+      those fitted as more hypotheses (`jaxpose._capture.second_look`); `second_look` 0 turns
+      this off (static).
     - `tie`: a distinct hypothesis whose consistency (`jaxpose._capture.consistency`) is
       within this of the best's makes the estimate `Status.ambiguous` (0–1). Our choice, not
       yet calibrated: the equivalent motions of an exactly symmetric target explain the
@@ -201,12 +206,22 @@ class RotationSearch(eqx.Module):
     wide_inlier: Scalar = 0.10
     wide_rounds: int = eqx.field(static=True, default=10)
     tie: Scalar = 0.06
+    second_look: int = eqx.field(static=True, default=32)
+    second_refined: int = eqx.field(static=True, default=8)
+    second_hypotheses: int = eqx.field(static=True, default=2)
 
     def __check_init__(self):
         if self.objective not in ("hard", "soft"):
             raise ValueError(f"RotationSearch.objective must be 'hard' or 'soft', got {self.objective!r}.")
         if min(self.rotations, self.modes, self.hypotheses, self.wide_rounds) < 1 or self.points < 10:
             raise ValueError("RotationSearch needs rotations, modes, hypotheses, wide_rounds ≥ 1 and points ≥ 10.")
+        if self.second_look < 0:
+            raise ValueError(f"RotationSearch.second_look must be ≥ 0, got {self.second_look}.")
+        if self.second_look and not 1 <= self.second_hypotheses <= self.second_refined <= self.second_look:
+            raise ValueError(
+                "RotationSearch needs 1 ≤ second_hypotheses ≤ second_refined ≤ second_look where second_look > 0, got "
+                f"{self.second_hypotheses}, {self.second_refined}, {self.second_look}."
+            )
         if self.hypotheses > self.modes:
             raise ValueError(f"RotationSearch.hypotheses ({self.hypotheses}) must not exceed modes ({self.modes}).")
         _check_range("RotationSearch", "separation_deg", self.separation_deg, 0.0, 180.0)
@@ -690,7 +705,8 @@ class Config(eqx.Module):
         """Capture at any rotation, for a first estimate with no prior: the global stage over the
         whole rotation group ([`RotationSearch`][jaxpose.RotationSearch], 8192 super-Fibonacci
         rotations and the principal-frame alignments scored on the coarse problem, 16 modes
-        refined, 6 hypotheses and a start from rest fitted to the surface), then the default
+        refined, 6 hypotheses, 2 more from the second look at the next 32 modes and a start
+        from rest fitted to the surface, and three half-turn twins), then the default
         fine stage from the best hypothesis. `Estimate.hypotheses` holds the distinct
         hypotheses, best first; `Estimate.ambiguous` says that another one explains the clouds
         as well (a symmetric target). Up to 30 BFGS steps per mode. The fine stage keeps

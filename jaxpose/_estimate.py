@@ -89,8 +89,9 @@ class Hypotheses(eqx.Module):
       x ↦ R x + t, like `Estimate.rotation` and `Estimate.translation`.
     - `score`: `(k,)` how well each explains the clouds, 0–1, higher is better: with the
       capture stage (`Config.so3`) its support, the share of the current points its surface
-      fit explains times the share of the surface each view should see of the other that it
-      does see (`jaxpose._capture.consistency`); otherwise the fine stage's inlier
+      fit explains times the share of the surface each view should see of the other (facing
+      the camera and not hidden behind nearer surface) that it does see
+      (`jaxpose._capture.consistency`); otherwise the fine stage's inlier
       fraction (0 for the estimate when the fine stage's result was dropped for its start's,
       1 for the single slot of a config without a fine stage). −1 in a slot without a
       hypothesis of its own.
@@ -166,8 +167,9 @@ class Estimate(eqx.Module):
       the view's outline fixes the translation along `direction` (two flat faces, along
       their common edge).
     - `hypotheses`: the distinct motions found, best first ([`Hypotheses`][jaxpose.Hypotheses]):
-      with the capture stage (`Config.so3`) its `RotationSearch.hypotheses`; otherwise the
-      chosen fit and the alternative (or the estimate alone without a fine stage).
+      with the capture stage (`Config.so3`) its fitted modes, the second look's, the fit
+      from rest and the three half-turn twins (`jaxpose._capture.CaptureResult`); otherwise
+      the chosen fit and the alternative (or the estimate alone without a fine stage).
     """
 
     params: Float[Array, "6"]

@@ -2,6 +2,7 @@
 principal alignments, the overlap translation, the consistency score, the half-turn twins,
 the hypotheses, a large turn found end to end, and N5's four equivalent motions."""
 
+import dataclasses
 import math
 
 import jax
@@ -190,6 +191,31 @@ def test_consistency_prefers_the_truth(large_turn, capture_config):
         assert score(wrong) < at_truth - 0.2
 
 
+def test_n5s_equivalent_motions_are_equally_consistent_once_hidden_points_are_not_expected(n5_turn, capture_config):
+    """N5's four equivalent motions explain the same clouds, so fitted like any hypothesis
+    their consistencies lie within `RotationSearch.tie` of one another: what each moves out
+    of the other view's sight behind nearer faces is not expected to be seen (the views'
+    range maps). Expecting every point that faces the camera to be seen scores the truth no
+    higher than that."""
+    problem = jp.Problem.build(n5_turn.prev, n5_turn.curr, capture_config)
+    so3 = capture_config.so3
+    prev = capture.previous_surface(problem, so3.points)
+    curr, grid = capture.current_surface(problem, so3.points)
+    starts = jnp.stack(
+        [jp.displacement_from_motion(problem.frame.origin, problem.frame.axes, R, t) for R, t in n5_turn.equivalents()]
+    )
+    _, _, agree = capture._hypothesis_fit(problem, capture_config, prev, curr, grid)(starts)
+    agree = np.asarray(agree)
+    assert agree.min() > 0.8 and agree.max() - agree.min() < float(so3.tie), agree
+    maps = capture.view_maps(problem)
+    blind = tuple(dataclasses.replace(m, nearest=jnp.full_like(m.nearest, jnp.inf)) for m in maps)
+    gate = capture_config.fine.inlier
+    seen, all_facing = (
+        float(capture.consistency(problem, starts[0], prev, curr, grid, gate, v)) for v in (maps, blind)
+    )
+    assert seen >= all_facing, (seen, all_facing)
+
+
 def test_a_mode_start_takes_the_correlated_translation_where_it_scores_higher(large_turn, capture_config):
     """At the fragment's true rotation after a 90–135° turn, a start 30 cm off along each axis
     gets a translation within a correlation cell of the truth's (and a higher hard score); the
@@ -215,13 +241,37 @@ def test_a_mode_start_takes_the_correlated_translation_where_it_scores_higher(la
     assert after[1] > before[1] and np.all(after >= before)
 
 
+def test_the_second_look_brings_back_a_mode_whose_grid_translation_is_far_off(large_turn, capture_config):
+    """Among four of the grid's modes at the fragment's true rotation after a 90–135° turn,
+    with a translation 30 cm off along each axis, and at three random rotations, the second
+    look's hypothesis lands within the coarse problem's reach of the truth, 5° and 5 cm (its
+    refine runs on the coarse cells; the hypothesis fit then takes it to the surface);
+    where the grid never had that mode (not filled), it is not returned."""
+    so3 = dataclasses.replace(capture_config.so3, second_look=4, second_refined=2, second_hypotheses=1)
+    config = dataclasses.replace(capture_config, so3=so3)
+    problem = jp.Problem.build(large_turn.prev, large_turn.curr, config)
+    truth = jp.displacement_from_motion(
+        problem.frame.origin, problem.frame.axes, large_turn.rotation, large_turn.translation
+    )
+    others = [jnp.concatenate([jnp.asarray(jp.angles(jnp.asarray(R)))[:3], truth[3:]]) for R in _random_rotations(3, 7)]
+    modes = jnp.stack([truth.at[3:].add(0.3), *others])
+    found, filled = capture.second_look(problem, config, modes, jnp.ones(4, bool))
+    assert found.shape == (1, 6) and bool(filled[0])
+    assert math.degrees(float(jp.rotation_angle(jp.rotation(*found[0, :3]), jp.rotation(*truth[:3])))) < 5.0
+    assert float(jnp.linalg.norm(found[0, 3:] - truth[3:])) < 0.05
+    unseen, _ = capture.second_look(problem, config, modes, jnp.asarray([False, True, True, True]))
+    assert math.degrees(float(jp.rotation_angle(jp.rotation(*unseen[0, :3]), jp.rotation(*truth[:3])))) > 20.0
+
+
 def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn, capture_config):
     assert large_turn.motion_deg > 90
     est = jp.estimate(large_turn.prev, large_turn.curr, capture_config, key=jax.random.key(0))
     errors = realistic.errors(large_turn, est.rotation, est.translation)
     assert errors["rotation_error_deg"] < 0.1 and errors["centroid_error_cm"] < 1.0, errors
     H = est.hypotheses
-    k = jp.RotationSearch().hypotheses + 4  # the fitted modes, the fit from rest and three half-turn twins
+    so3 = jp.RotationSearch()
+    # The fitted modes, the second look's, the fit from rest and three half-turn twins.
+    k = so3.hypotheses + so3.second_hypotheses + 4
     assert H.rotation.shape == (k, 3, 3) and H.translation.shape == (k, 3) and H.score.shape == (k,)
     np.testing.assert_allclose(np.asarray(H.rotation[0]), np.asarray(est.rotation), atol=1e-12)
     np.testing.assert_allclose(np.asarray(H.translation[0]), np.asarray(est.translation), atol=1e-12)
@@ -286,6 +336,10 @@ def test_default_estimate_reports_its_two_fits_as_hypotheses(paper_clouds):
 def test_capture_config_is_checked():
     with pytest.raises(ValueError, match="hypotheses"):
         jp.RotationSearch(modes=4, hypotheses=6)
+    with pytest.raises(ValueError, match="second_hypotheses"):
+        jp.RotationSearch(second_look=8, second_refined=12)
+    with pytest.raises(ValueError, match="second_look"):
+        jp.RotationSearch(second_look=-1)
     with pytest.raises(ValueError, match="rotations"):
         jp.RotationSearch(rotations=0)
     with pytest.raises(ValueError, match="fine stage"):
