@@ -74,9 +74,11 @@ def _directions(basis, camera, points) -> tuple[Float[Array, " N"], Float[Array,
     return u, v, jnp.linalg.norm(points - camera[:, None], axis=0)
 
 
-def _cells(rmap_lo, cell, u, v):
-    i = jnp.clip(jnp.floor((u - rmap_lo[0]) / cell), 0, RANGE_CELLS - 1).astype(jnp.int32)
-    j = jnp.clip(jnp.floor((v - rmap_lo[1]) / cell), 0, RANGE_CELLS - 1).astype(jnp.int32)
+def _cells(lo, cell, u, v):
+    """The cell (i, j) of tangent-plane coordinates (u, v) in a map whose bounding box starts
+    at `lo` with cells of side `cell`, clamped to the map (callers judge `inside` apart)."""
+    i = jnp.clip(jnp.floor((u - lo[0]) / cell), 0, RANGE_CELLS - 1).astype(jnp.int32)
+    j = jnp.clip(jnp.floor((v - lo[1]) / cell), 0, RANGE_CELLS - 1).astype(jnp.int32)
     return i, j
 
 
