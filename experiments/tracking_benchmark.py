@@ -35,6 +35,12 @@ separately). Per family and overall: median, p90 and max.
           moved from the default at a time, and a floor added to every measurement's
           covariance), rate and attitude errors at the end: how much the filter's tuning
           moves the rate goal with the registrations held fixed
+    uv run python experiments/tracking_benchmark.py identified [name]
+        → results/<name>_identified.{json,md} (name: tracking_benchmark, or
+          tracking_benchmark_from20 for the second draw): the saved registrations of that run
+          through `identify` (Euler's equations fitted over the whole window), the rate and
+          attitude errors at the end of the fitted motion beside the filter's: how much a
+          dynamical model moves the rate goal with the registrations held fixed
     uv run python experiments/tracking_benchmark.py reach [tumbles] [duration_s] [rate_hz]
         → results/tracking_reach.{json,md}: how far one keyframe reaches: every frame of
           `tumbles` other random tumbles (seeds 3000 + i, not the benchmark's) registered
@@ -59,6 +65,8 @@ from _common import RESULTS, write_json
 import jaxpose as jp
 from jaxpose._problem import sized_sequence_config
 from jaxpose.sim import Tumble, simulate_sequence
+from jaxpose.sim._sequence import C_FROM_O
+from jaxpose.tracking._identify import Orbit, identify_tracked
 from jaxpose.tracking._track import (
     FILTER_UPDATED,
     Chain,
@@ -66,6 +74,7 @@ from jaxpose.tracking._track import (
     chain_estimates,
     chained_motions,
     filter_keyframes,
+    is_registered,
 )
 
 FAMILIES = ("n5", "chibis_m", "satellite", "upper_stage", "fragment")
@@ -196,11 +205,11 @@ def chain_of_track(saved: dict) -> Chain:
     return Chain(*(jnp.asarray(a) for a in arrays), jnp.asarray(saved["continuity"]))
 
 
-def saved_tumbles() -> tuple[dict, list[dict]]:
-    """The last default run: its JSON (`tracking_benchmark.json`) and, per tumble in its rows'
-    order, the saved registrations and true rotations (`tracking_benchmark_chains.npz`)."""
-    saved = np.load(RESULTS / "tracking_benchmark_chains.npz")
-    benchmark = json.loads((RESULTS / "tracking_benchmark.json").read_text())
+def saved_tumbles(name: str = "tracking_benchmark") -> tuple[dict, list[dict]]:
+    """The last default run: its JSON (`<name>.json`) and, per tumble in its rows' order, the
+    saved registrations and true rotations (`<name>_chains.npz`)."""
+    saved = np.load(RESULTS / f"{name}_chains.npz")
+    benchmark = json.loads((RESULTS / f"{name}.json").read_text())
     fields = ("truth", *REGISTRATIONS)
     return benchmark, [{field: saved[field][i] for field in fields} for i in range(len(benchmark["rows"]))]
 
@@ -288,6 +297,93 @@ SWEEP = (
 `floor_deg`, a standard deviation (°) added in quadrature to every measurement's rotation
 block (the registrations' covariance is overconfident on some views: a floor tells the filter
 to trust no registration beyond it)."""
+
+
+def identified_errors(saved: dict, tumble: Tumble, rate_hz: float) -> dict:
+    """The rate (°/s) and attitude (°) errors at the last frame of the motion that `identify`
+    fits to one saved tumble's registrations (`identify_tracked`: Euler's equations over the
+    whole window, every registration keyframe → k weighted by its covariance; an `Orbit` for
+    an orbital camera), measured as `filter_errors` measures the filter's: the rate from the
+    model's last two frames against `true_rates`, the attitude R_0k against the truth."""
+    R = saved["truth"]
+    orbit = Orbit(tumble.orbit_rate, C_FROM_O) if tumble.orbit_rate else None
+    registered = is_registered(jnp.asarray(saved["status"]), jnp.asarray(saved["continuity"]))
+    t0 = time.perf_counter()
+    dynamics = identify_tracked(
+        saved["rotations"],
+        saved["points"],
+        registered,
+        saved["keyframes"],
+        saved["measurement_cov"],
+        1 / rate_hz,
+        orbit=orbit,
+    )
+    model, _ = dynamics.predict(jnp.arange(len(R)) / rate_hz)
+    model = np.asarray(jax.block_until_ready(model))
+    seconds = time.perf_counter() - t0
+    rate = np.asarray(jaxlie.SO3.from_matrix(model[-1] @ model[-2].T).log()) * rate_hz
+    truth_A = R[-1] @ R[0].T
+    return {
+        "identified_rate_error_deg_s": float(np.degrees(np.linalg.norm(rate - true_rates(R, rate_hz)[-1]))),
+        "identified_attitude_error_deg": np.degrees(float(jp.rotation_angle(jnp.asarray(model[-1]), truth_A))),
+        "observable": bool(dynamics.observable),
+        "identify_s": seconds,
+    }
+
+
+def identified(name: str = "tracking_benchmark") -> None:
+    """The saved registrations of a default run (`<name>_chains.npz`) through `identify`
+    (`identified_errors`), beside the filter's errors of that run → `<name>_identified.{json,md}`.
+    The first tumble compiles the fit; its time is not comparable with the others'."""
+    benchmark, tumbles = saved_tumbles(name)
+    rate_hz = benchmark["rate_hz"]
+    rows = []
+    for old, saved in zip(benchmark["rows"], tumbles, strict=True):
+        _, _, tumble, _ = draw_tumble(old["tumble"], BENCHMARK_SEEDS)
+        row = {key: old[key] for key in ("tumble", "family", "sigma_cm", "camera", "rate_deg_s")}
+        row |= {
+            "filter_rate_error_deg_s": old["rate_error_deg_s"],
+            "filter_attitude_error_deg": old["attitude_error_deg"],
+        }
+        row |= identified_errors(saved, tumble, rate_hz)
+        rows.append(row)
+        print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+    columns = (
+        "filter_rate_error_deg_s",
+        "identified_rate_error_deg_s",
+        "filter_attitude_error_deg",
+        "identified_attitude_error_deg",
+    )
+    groups = {f: [r for r in rows if r["family"] == f] for f in FAMILIES} | {"all": rows}
+    summary = []
+    for family, group in groups.items():
+        values = {c: np.array([r[c] for r in group]) for c in columns}
+        summary.append(
+            {"family": family, "tumbles": len(group)}
+            | {
+                f"{c}_{q}": float(np.quantile(v, {"median": 0.5, "p90": 0.9, "max": 1.0}[q]))
+                for c, v in values.items()
+                for q in ("median", "p90", "max")
+            }
+        )
+    head = (
+        f"| family | tumbles | rate error at {benchmark['duration_s']:g} s, °/s, filter: median / p90 / max "
+        "| identified: median / p90 / max | attitude error, °, filter: median / max | identified: median / max |\n"
+        "|---|---|---|---|---|---|\n"
+    )
+    lines = []
+    for s in summary:
+        f, i = "filter_rate_error_deg_s", "identified_rate_error_deg_s"
+        fa, ia = "filter_attitude_error_deg", "identified_attitude_error_deg"
+        lines.append(
+            f"| {s['family']} | {s['tumbles']} | {s[f + '_median']:.3f} / {s[f + '_p90']:.3f} / {s[f + '_max']:.3f} "
+            f"| {s[i + '_median']:.3f} / {s[i + '_p90']:.3f} / {s[i + '_max']:.3f} "
+            f"| {s[fa + '_median']:.3f} / {s[fa + '_max']:.3f} | {s[ia + '_median']:.3f} / {s[ia + '_max']:.3f} |"
+        )
+    table = head + "\n".join(lines) + "\n"
+    print(table)
+    write_json(f"{name}_identified.json", {"source": name, "summary": summary, "rows": rows})
+    (RESULTS / f"{name}_identified.md").write_text(table)
 
 
 def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
@@ -515,6 +611,8 @@ if __name__ == "__main__":
         refilter(json.loads(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "options")
     elif sys.argv[1:] == ["sweep"]:
         sweep()
+    elif sys.argv[1:2] == ["identified"]:
+        identified(*sys.argv[2:3])
     elif sys.argv[1:2] == ["reach"]:
         reach(*(f(a) for f, a in zip((int, float, float), sys.argv[2:], strict=False)))
     elif sys.argv[1:2] == ["issue"]:
