@@ -66,7 +66,7 @@ import jaxpose as jp
 from jaxpose._problem import sized_sequence_config
 from jaxpose.sim import Tumble, simulate_sequence
 from jaxpose.sim._sequence import C_FROM_O
-from jaxpose.tracking._identify import Orbit, identify_tracked
+from jaxpose.tracking._identify import identify_tracked
 from jaxpose.tracking._track import (
     FILTER_UPDATED,
     Chain,
@@ -299,6 +299,20 @@ block (the registrations' covariance is overconfident on some views: a floor tel
 to trust no registration beyond it)."""
 
 
+QUANTILES = {"median": 0.5, "p90": 0.9, "max": 1.0}
+
+
+def quantiles(rows: list[dict], column: str) -> dict[str, float]:
+    """The `QUANTILES` of one column over rows."""
+    values = np.array([r[column] for r in rows])
+    return {name: float(np.quantile(values, q)) for name, q in QUANTILES.items()}
+
+
+def cell(values: dict[str, float], names=tuple(QUANTILES)) -> str:
+    """A table cell of `quantiles`' values, e.g. "0.031 / 0.262 / 0.353"."""
+    return " / ".join(f"{values[name]:.3f}" for name in names)
+
+
 def identified_errors(saved: dict, tumble: Tumble, rate_hz: float) -> dict:
     """The rate (°/s) and attitude (°) errors at the last frame of the motion that `identify`
     fits to one saved tumble's registrations (`identify_tracked`: Euler's equations over the
@@ -306,7 +320,7 @@ def identified_errors(saved: dict, tumble: Tumble, rate_hz: float) -> dict:
     an orbital camera), measured as `filter_errors` measures the filter's: the rate from the
     model's last two frames against `true_rates`, the attitude R_0k against the truth."""
     R = saved["truth"]
-    orbit = Orbit(tumble.orbit_rate, C_FROM_O) if tumble.orbit_rate else None
+    orbit = jp.Orbit(tumble.orbit_rate, C_FROM_O) if tumble.orbit_rate else None
     registered = is_registered(jnp.asarray(saved["status"]), jnp.asarray(saved["continuity"]))
     t0 = time.perf_counter()
     dynamics = identify_tracked(
@@ -348,38 +362,23 @@ def identified(name: str = "tracking_benchmark") -> None:
         row |= identified_errors(saved, tumble, rate_hz)
         rows.append(row)
         print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
-    columns = (
-        "filter_rate_error_deg_s",
-        "identified_rate_error_deg_s",
-        "filter_attitude_error_deg",
-        "identified_attitude_error_deg",
-    )
-    groups = {f: [r for r in rows if r["family"] == f] for f in FAMILIES} | {"all": rows}
-    summary = []
-    for family, group in groups.items():
-        values = {c: np.array([r[c] for r in group]) for c in columns}
-        summary.append(
-            {"family": family, "tumbles": len(group)}
-            | {
-                f"{c}_{q}": float(np.quantile(v, {"median": 0.5, "p90": 0.9, "max": 1.0}[q]))
-                for c, v in values.items()
-                for q in ("median", "p90", "max")
-            }
-        )
+    columns = ("filter_rate_error_deg_s", "identified_rate_error_deg_s")
+    columns += ("filter_attitude_error_deg", "identified_attitude_error_deg")
+    summary = [
+        {"family": family, "tumbles": len(group)} | {c: quantiles(group, c) for c in columns}
+        for family, group in by_family(rows).items()
+    ]
     head = (
         f"| family | tumbles | rate error at {benchmark['duration_s']:g} s, °/s, filter: median / p90 / max "
         "| identified: median / p90 / max | attitude error, °, filter: median / max | identified: median / max |\n"
         "|---|---|---|---|---|---|\n"
     )
-    lines = []
-    for s in summary:
-        f, i = "filter_rate_error_deg_s", "identified_rate_error_deg_s"
-        fa, ia = "filter_attitude_error_deg", "identified_attitude_error_deg"
-        lines.append(
-            f"| {s['family']} | {s['tumbles']} | {s[f + '_median']:.3f} / {s[f + '_p90']:.3f} / {s[f + '_max']:.3f} "
-            f"| {s[i + '_median']:.3f} / {s[i + '_p90']:.3f} / {s[i + '_max']:.3f} "
-            f"| {s[fa + '_median']:.3f} / {s[fa + '_max']:.3f} | {s[ia + '_median']:.3f} / {s[ia + '_max']:.3f} |"
-        )
+    ends = ("median", "max")
+    lines = [
+        f"| {s['family']} | {s['tumbles']} | {cell(s[columns[0]])} | {cell(s[columns[1]])} "
+        f"| {cell(s[columns[2]], ends)} | {cell(s[columns[3]], ends)} |"
+        for s in summary
+    ]
     table = head + "\n".join(lines) + "\n"
     print(table)
     write_json(f"{name}_identified.json", {"source": name, "summary": summary, "rows": rows})
@@ -516,12 +515,15 @@ def _reach_program(clouds, config, key, steps):
     return chain_estimates(clouds, config, key, keyframe_every=steps, keyframe_reach=None)
 
 
-def summarise(rows: list[dict]) -> list[dict]:
+def by_family(rows: list[dict]) -> dict[str, list[dict]]:
+    """The rows of each family of `FAMILIES` that has any, in that order, then "all" rows."""
     groups = {f: [r for r in rows if r["family"] == f] for f in FAMILIES} | {"all": rows}
+    return {name: group for name, group in groups.items() if group}
+
+
+def summarise(rows: list[dict]) -> list[dict]:
     out = []
-    for name, group in groups.items():
-        if not group:
-            continue
+    for name, group in by_family(rows).items():
         rate = np.array([r["rate_error_deg_s"] for r in group])
         att = np.array([r["attitude_error_deg"] for r in group])
         out.append(
