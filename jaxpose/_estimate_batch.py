@@ -6,7 +6,10 @@ loop runs until the batch's slowest pair is done. On a CPU that costs more than 
 (docs/performance.md, "Batches"). `estimate_batch` sizes one config from all the pairs,
 then runs them under `lax.map` in one compiled program per capacity bucket, so each pair
 takes only its own branches and loop counts and the batch pays one dispatch. `chunk` > 1
-vmaps that many pairs at a time inside the map, for accelerators.
+vmaps that many pairs at a time inside the map. On an accelerator the default vmaps the
+whole batch: there a sequential map leaves the device nearly idle, and lockstep costs less
+than it saves (on one H200, 64 N5 pairs ran 18 pairs/s one after another and 336 pairs/s
+vmapped; experiments/device_speed.py, docs/performance.md).
 """
 
 from __future__ import annotations
@@ -15,15 +18,12 @@ import jax
 import numpy as np
 from jaxtyping import Array, Key
 
+from ._batch import on_accelerator
 from ._cloud import Cloud
 from ._config import Config
 from ._estimate import Estimate, _estimate_pair
 from ._problem import check_range, raise_for_codes, run_growing, sized_batch_config
 from ._programs import BoundedJit
-
-
-def _pair(clouds: Cloud, i: int) -> Cloud:
-    return Cloud(clouds.points[i], clouds.valid[i])
 
 
 def _keys(key: Key[Array, ""] | Key[Array, " B"], count: int) -> Key[Array, " B"]:
@@ -33,6 +33,17 @@ def _keys(key: Key[Array, ""] | Key[Array, " B"], count: int) -> Key[Array, " B"
     if key.shape != (count,):
         raise ValueError(f"key: one key or {count} keys (one per pair), got shape {key.shape}.")
     return key
+
+
+def _pair(clouds: Cloud, i: int) -> Cloud:
+    return Cloud(clouds.points[i], clouds.valid[i])
+
+
+def default_chunk(count: int) -> int:
+    """`estimate_batch`'s pairs per vmapped step when none is given: 1 on a CPU (each pair
+    takes only its own branches and loop counts), all `count` on an accelerator (module
+    docstring)."""
+    return count if on_accelerator() else 1
 
 
 def _map_pairs(prev: Cloud, curr: Cloud, config: Config, keys: Key[Array, " B"], chunk: int):
@@ -56,7 +67,7 @@ def estimate_batch(
     config: Config | None = None,
     *,
     key: Key[Array, ""] | Key[Array, " B"],
-    chunk: int = 1,
+    chunk: int | None = None,
 ) -> Estimate:
     """[`estimate`][jaxpose.estimate] for B pairs in one compiled call.
 
@@ -69,8 +80,9 @@ def estimate_batch(
       sized from all the pairs, as `estimate` sizes them from one.
     - `key`: one PRNG key, split into one per pair, or B keys. Pair i with key k gives what
       `estimate(prev[i], curr[i], config, key=k)` gives with the batch's capacities.
-    - `chunk`: pairs run together under `vmap` inside the sequential map (1, the default,
-      is fastest on a CPU).
+    - `chunk`: pairs run together under `vmap` inside the sequential map. None (the
+      default): 1 on a CPU, where that is fastest, and the whole batch on an accelerator
+      (`jaxpose._estimate_batch.default_chunk`).
 
     **Returns:**
 
@@ -84,9 +96,10 @@ def estimate_batch(
             "estimate_batch: prev and curr need a leading batch axis of the same length "
             f"(points (B, N, 3)), got {prev.points.shape} and {curr.points.shape}."
         )
+    count = prev.points.shape[0]
+    chunk = default_chunk(count) if chunk is None else chunk
     if chunk < 1:
         raise ValueError(f"estimate_batch: chunk must be ≥ 1, got {chunk}.")
-    count = prev.points.shape[0]
     pairs = [(_pair(prev, i), _pair(curr, i)) for i in range(count)]
     for i, (p, c) in enumerate(pairs):
         p.check(f"pair {i}: previous cloud")

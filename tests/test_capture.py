@@ -64,6 +64,35 @@ def test_distinct_best_keeps_the_best_of_each_mode():
     assert list(np.asarray(filled)) == [True, True, True, False]
 
 
+def _greedy_walk(scores, G, k, separation, look):
+    """Non-maximum suppression as its definition reads: walk the `look` best in order of score
+    and keep each rotation more than `separation` from every one kept before it (numpy, the
+    angle from the trace)."""
+    kept = []
+    for j in np.argsort(-scores, kind="stable")[:look]:
+        cos = [(np.trace(G[i].T @ G[j]) - 1) / 2 for i in kept]
+        if all(np.arccos(np.clip(c, -1, 1)) > separation for c in cos) and len(kept) < k:
+            kept.append(int(j))
+    return kept
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_distinct_best_keeps_what_the_greedy_walk_keeps(seed):
+    # Rotations clustered about a few centres (many within the separation of one another)
+    # and random scores; k and look vary, some draws leave slots unfilled.
+    rng = np.random.default_rng(seed)
+    centres = _random_rotations(5, seed)
+    turns = np.stack([realistic._axis_angle(rng.normal(size=3), math.radians(rng.uniform(0, 25))) for _ in range(300)])
+    G = np.einsum("nij,njk->nik", centres[rng.integers(0, 5, 300)], turns)
+    scores = rng.normal(size=300)
+    k, look, separation = [(6, 300), (12, 300), (4, 40), (20, 120)][seed] + (math.radians(12.0),)
+    idx, filled = capture.distinct_best(jnp.asarray(scores), jnp.asarray(G), k, separation, look)
+    walk = _greedy_walk(scores, G, k, separation, look)
+    assert list(np.asarray(idx)[np.asarray(filled)]) == walk
+    assert int(np.sum(np.asarray(filled))) == len(walk) and np.all(np.asarray(filled)[: len(walk)])
+    assert np.all(np.asarray(idx)[len(walk) :] == np.argmax(scores))  # an unfilled slot repeats the best
+
+
 def _surface(points, normals):
     return capture.Surface(jnp.asarray(points), jnp.asarray(normals), jnp.ones(points.shape[1]))
 
