@@ -19,10 +19,10 @@ import numpy as np
 from jaxtyping import Array, Key
 
 from ._batch import on_accelerator
-from ._cloud import Cloud
+from ._cloud import Cloud, _check_arrays
 from ._config import Config
 from ._estimate import Estimate, _estimate_pair
-from ._problem import check_range, raise_for_codes, run_growing, sized_batch_config
+from ._problem import check_reach, raise_for_codes, run_growing, sized_stacked_config
 from ._programs import BoundedJit
 
 
@@ -33,10 +33,6 @@ def _keys(key: Key[Array, ""] | Key[Array, " B"], count: int) -> Key[Array, " B"
     if key.shape != (count,):
         raise ValueError(f"key: one key or {count} keys (one per pair), got shape {key.shape}.")
     return key
-
-
-def _pair(clouds: Cloud, i: int) -> Cloud:
-    return Cloud(clouds.points[i], clouds.valid[i])
 
 
 def default_chunk(count: int) -> int:
@@ -100,14 +96,15 @@ def estimate_batch(
     chunk = default_chunk(count) if chunk is None else chunk
     if chunk < 1:
         raise ValueError(f"estimate_batch: chunk must be ≥ 1, got {chunk}.")
-    pairs = [(_pair(prev, i), _pair(curr, i)) for i in range(count)]
-    for i, (p, c) in enumerate(pairs):
-        p.check(f"pair {i}: previous cloud")
-        c.check(f"pair {i}: current cloud")
-        check_range(p, c, config)
+    # Checked on host copies, pair by pair: no device op or transfer per pair.
+    host = [(side, np.asarray(c.points), np.asarray(c.valid)) for side, c in (("previous", prev), ("current", curr))]
+    for i in range(count):
+        for side, points, valid in host:
+            _check_arrays(points[i], valid[i], f"pair {i}: {side} cloud")
+            check_reach(f"pair {i}: {side} cloud", points[i], valid[i], config)
     keys = _keys(key, count)
     prev, curr = prev.floating(), curr.floating()
-    config = sized_batch_config(pairs, config)
+    config = sized_stacked_config(prev, curr, config)
     est, status, frame_status = run_growing(lambda grown: _estimate_pairs(prev, curr, grown, keys, chunk), config)
     for i, (code, frame_code) in enumerate(zip(np.asarray(status), np.asarray(frame_status), strict=True)):
         try:

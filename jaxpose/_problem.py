@@ -219,6 +219,15 @@ def sized_batch_config(pairs: Sequence[tuple[Cloud, Cloud]], config: Config) -> 
     return _filled(config, max(counts), max(g for _, g, _ in sizes), max(s for _, _, s in sizes))
 
 
+def sized_stacked_config(prev: Cloud, curr: Cloud, config: Config) -> Config:
+    """[`sized_batch_config`][] for pairs stacked along a leading batch axis (points
+    `(B, N, 3)` and `(B, M, 3)`): the previous clouds' pattern sizes in one vmapped program
+    instead of one call per pair. Python boundary only."""
+    counts, grids, selected, _ = eqx.filter_vmap(lambda c: _pattern_sizes(c, config))(prev)
+    n_curr = int(np.max(np.sum(np.asarray(curr.valid), axis=-1)))
+    return _filled(config, max(int(jnp.max(counts)), n_curr), int(jnp.max(grids)), int(jnp.max(selected)))
+
+
 def _filled(config: Config, points: int, grid: int, selected: int) -> Config:
     """`config` with each capacity left at None set from the sizes of the data: `points` valid
     points (both clouds), a largest pattern grid of `grid` cells per axis and `selected`
@@ -259,22 +268,31 @@ new process sizes its first pair without tracing it)."""
 def check_range(prev: Cloud, curr: Cloud, config: Config) -> None:
     """Refuse clouds beyond `config.thresholds.max_range`, or so far out that the float type cannot
     resolve d/10 there (both mean the data are not lidar returns in metres)."""
-    d = config.patterns.d
     for name, cloud in (("previous cloud", prev), ("current cloud", curr)):
-        pts = np.abs(np.asarray(cloud.masked_points))
-        far = float(pts.max()) if pts.size else 0.0
-        if far > config.thresholds.max_range:
-            raise ValueError(
-                f"{name}: points reach {far:.3g} m from the camera, beyond Config.thresholds.max_range = "
-                f"{config.thresholds.max_range:g} m. Check the units (metres) or raise max_range."
-            )
-        resolution = far * float(np.finfo(pts.dtype).eps)
-        if resolution > d / 10:
-            raise ValueError(
-                f"{name}: points reach {far:.3g} m from the camera, out of range for {pts.dtype} "
-                f"(resolution {resolution:.2g} m there, coarser than d/10 = {d / 10:.2g} m). "
-                "Recentre the clouds near the camera origin or enable float64 (jax_enable_x64)."
-            )
+        check_reach(name, np.asarray(cloud.points), np.asarray(cloud.valid), config)
+
+
+def check_reach(name: str, points: np.ndarray, valid: np.ndarray, config: Config) -> None:
+    """[`check_range`][] for one cloud given as host (numpy) arrays, `name` leading the message.
+    The points are masked in numpy, as `Cloud.masked_points` masks them: a check at the Python
+    boundary then costs no device op or transfer beyond one copy of the arrays (on an
+    accelerator, each op is a round trip)."""
+    dtype = points.dtype if jnp.issubdtype(points.dtype, jnp.floating) else jnp.result_type(float)
+    pts = np.abs(np.where(valid[..., None], points, 0).astype(dtype))
+    far = float(pts.max()) if pts.size else 0.0
+    if far > config.thresholds.max_range:
+        raise ValueError(
+            f"{name}: points reach {far:.3g} m from the camera, beyond Config.thresholds.max_range = "
+            f"{config.thresholds.max_range:g} m. Check the units (metres) or raise max_range."
+        )
+    d = config.patterns.d
+    resolution = far * float(np.finfo(pts.dtype).eps)
+    if resolution > d / 10:
+        raise ValueError(
+            f"{name}: points reach {far:.3g} m from the camera, out of range for {pts.dtype} "
+            f"(resolution {resolution:.2g} m there, coarser than d/10 = {d / 10:.2g} m). "
+            "Recentre the clouds near the camera origin or enable float64 (jax_enable_x64)."
+        )
 
 
 def raise_for_status(problem: Problem) -> None:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose._problem import sized_batch_config
+from jaxpose._problem import sized_batch_config, sized_stacked_config
 
 PAIRS = [("n5", "previous", "variant1"), ("n5", "previous", "variant2"), ("n1", "previous", "variant2")]
 
@@ -62,3 +62,13 @@ def test_batch_shapes_keys_and_chunk_are_checked_before_any_compile(batch):
     with pytest.raises(ValueError, match="pair 1: current cloud"):
         nan = curr.points.at[1, 0].set(jnp.nan)
         jp.estimate_batch(prev, jp.Cloud(nan, curr.valid.at[1, 0].set(True)), key=jax.random.key(0))
+    with pytest.raises(ValueError, match="pair 2: previous cloud: points reach .* beyond Config.thresholds.max_range"):
+        jp.estimate_batch(jp.Cloud(prev.points.at[2].multiply(1e4), prev.valid), curr, key=jax.random.key(0))
+
+
+def test_the_stacked_sizing_is_the_sizing_of_the_list_of_pairs(batch):
+    config = jp.Config.fast()
+    stacked = sized_stacked_config(_stack(batch[0]), _stack(batch[1]), config)
+    listed = sized_batch_config(list(zip(*batch, strict=True)), config)
+    assert stacked.capacities == listed.capacities
+    assert stacked.capacities.max_points is not None  # sized, not left open
