@@ -402,10 +402,12 @@ def _refined(problem: Problem, config: Config, ps: Float[Array, "m 6"]) -> Float
     return map_batch(lambda p: local_refine(problem.search_problem, config, p).params, ps)
 
 
-def _best_distinct(problem: Problem, ps: Float[Array, "m 6"], k: int, separation) -> tuple:
+def _best_distinct(problem: Problem, ps: Float[Array, "m 6"], k: int, separation, live=None) -> tuple:
     """Indices of the `k` distinct best of `ps` (frame n) by the coarse problem's soft
-    objective ([`distinct_best`][], `separation` in radians), and which slots were filled."""
+    objective ([`distinct_best`][], `separation` in radians), and which slots were filled.
+    `live` (m,): where given, only those rows compete; the others rank behind every live one."""
     scores = score_batch(ps, problem.search_problem, "soft")
+    scores = scores if live is None else jnp.where(live, scores, -jnp.inf)
     G = jax.vmap(lambda p: rotation(*p[:3]))(ps)
     return distinct_best(scores, G, k, separation, ps.shape[0])
 
@@ -430,8 +432,9 @@ def second_look(
     hard = jnp.where(filled, score_batch(moved, problem.search_problem, "hard"), -jnp.inf)
     _, best = jax.lax.top_k(hard, so3.second_refined)
     refined = _refined(problem, config, moved[best])
-    top, top_filled = _best_distinct(problem, refined, so3.second_hypotheses, math.radians(so3.separation_deg))
-    return refined[top], top_filled & filled[best][top]
+    live = filled[best]  # fewer filled modes than `second_refined`: the rest are not picked
+    top, top_filled = _best_distinct(problem, refined, so3.second_hypotheses, math.radians(so3.separation_deg), live)
+    return refined[top], top_filled & live[top]
 
 
 def correlated_translations(problem: Problem, ps: Float[Array, "m 6"]) -> Float[Array, "m 6"]:

@@ -293,6 +293,12 @@ def test_the_second_look_brings_back_a_mode_whose_grid_translation_is_far_off(la
     assert float(jnp.linalg.norm(found[0, 3:] - truth[3:])) < 0.05
     unseen, _ = capture.second_look(problem, config, modes, jnp.asarray([False, True, True, True]))
     assert math.degrees(float(jp.rotation_angle(jp.rotation(*unseen[0, :3]), jp.rotation(*truth[:3])))) > 20.0
+    # One filled mode, fewer than `second_refined`: the unfilled truth is refined with it
+    # (`lax.top_k` takes the lowest index among equal scores) but never takes its slot.
+    swapped = modes[jnp.asarray([1, 0, 2, 3])]
+    alone, alone_filled = capture.second_look(problem, config, swapped, jnp.asarray([True, False, False, False]))
+    assert bool(alone_filled[0])
+    assert math.degrees(float(jp.rotation_angle(jp.rotation(*alone[0, :3]), jp.rotation(*truth[:3])))) > 20.0
 
 
 def test_capture_finds_a_large_turn_with_its_hypotheses(large_turn, capture_config):
