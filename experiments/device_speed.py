@@ -34,10 +34,9 @@ import traceback
 from pathlib import Path
 
 import jax
-import numpy as np
 from _common import write_json
 from capture_benchmark import scoring_throughput
-from public_speed import fresh_process, median_time, warm_pairs
+from public_speed import fresh_process, median_time, n5_batch, warm_pairs
 
 import jaxpose as jp
 from jaxpose._estimate_batch import default_chunk
@@ -52,12 +51,7 @@ SHARE = {"warm": 0.0, "capture": 0.45, "batched": 0.15, "cold": 0.06}
 def batched(batch: int, repeats: int) -> dict:
     """Pairs per second for `batch` N5 pairs at σ = 1 cm: `jp.estimate_batch` and `jax.vmap`
     of `jp.estimate` with one config sized for the camera; the first call apart."""
-    cases = realistic.make_cases(batch, names=("n5",), levels=(1.0,))
-    config = jp.Config().sized_for(jp.Camera.camcube2(), 1.9)
-    stack = lambda xs: jax.tree.map(lambda *x: np.stack(x), *xs)  # noqa: E731
-    prev, curr = stack([c.prev for c in cases]), stack([c.curr for c in cases])
-    keys = jax.random.split(jax.random.key(0), batch)
-    vmapped = jax.jit(jax.vmap(lambda p, c, k: jp.estimate(p, c, config, key=k)))
+    cases, prev, curr, keys, vmapped = n5_batch(batch)
     runs = {
         "estimate_batch": lambda: jp.estimate_batch(prev, curr, key=keys),
         "vmap": lambda: vmapped(prev, curr, keys),

@@ -126,17 +126,25 @@ def cli_end_to_end(folder: Path, cache: str) -> float:
     return time.perf_counter() - t0
 
 
-def batched(batch: int, repeats: int) -> dict:
-    """Pairs per second for `batch` N5 pairs at σ = 1 cm: `jax.vmap` of `estimate` (one config
-    sized for the camera), `jp.estimate_batch` (one `lax.map` program, sized from the pairs)
-    and one public call per pair (one compiled program per capacity bucket kept); compile
-    (with the first run) apart, and how many buckets the pairs fall into."""
+def n5_batch(batch: int):
+    """`batch` N5 pairs at σ = 1 cm (`realistic.make_cases`) stacked for one batched call, a
+    key per pair, and `jax.jit(jax.vmap(jp.estimate))` with one config sized for the camera:
+    (cases, prev, curr, keys, vmapped)."""
     cases = realistic.make_cases(batch, names=("n5",), levels=(1.0,))
     config = jp.Config().sized_for(jp.Camera.camcube2(), 1.9)
     stack = lambda xs: jax.tree.map(lambda *x: np.stack(x), *xs)  # noqa: E731
     prev, curr = stack([c.prev for c in cases]), stack([c.curr for c in cases])
     keys = jax.random.split(jax.random.key(0), batch)
     vmapped = jax.jit(jax.vmap(lambda p, c, k: jp.estimate(p, c, config, key=k)))
+    return cases, prev, curr, keys, vmapped
+
+
+def batched(batch: int, repeats: int) -> dict:
+    """Pairs per second for `batch` N5 pairs at σ = 1 cm: `jax.vmap` of `estimate` (one config
+    sized for the camera), `jp.estimate_batch` (one `lax.map` program, sized from the pairs)
+    and one public call per pair (one compiled program per capacity bucket kept); compile
+    (with the first run) apart, and how many buckets the pairs fall into."""
+    cases, prev, curr, keys, vmapped = n5_batch(batch)
     runs = {
         "vmap": lambda: vmapped(prev, curr, keys),
         "estimate_batch": lambda: jp.estimate_batch(prev, curr, key=keys),
