@@ -8,7 +8,7 @@ then runs them under `lax.map` in one compiled program per capacity bucket, so e
 takes only its own branches and loop counts and the batch pays one dispatch. `chunk` > 1
 vmaps that many pairs at a time inside the map. On an accelerator the default vmaps the
 whole batch: there a sequential map leaves the device nearly idle, and lockstep costs less
-than it saves (on one H200, 64 N5 pairs ran 18 pairs/s one after another and 336 pairs/s
+than it saves (on one H200, 64 N5 pairs ran 18 pairs/s one after another and 180 pairs/s
 vmapped; experiments/device_speed.py, docs/performance.md).
 """
 

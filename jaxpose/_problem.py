@@ -206,8 +206,14 @@ def sized_sequence_config(clouds: Cloud, config: Config) -> Config:
     previous cloud of a pair (a tracker's keyframe) and any the current one: the largest valid
     count, pattern grid and pattern selection over the frames, rounded as [`sized_config`][].
     Python boundary only."""
+    return _filled(config, *_largest_sizes(clouds, config))
+
+
+def _largest_sizes(clouds: Cloud, config: Config) -> tuple[int, int, int]:
+    """The largest valid count, pattern grid and pattern selection over clouds stacked along a
+    leading axis, in one vmapped program (`_sizes_of_patterns` per cloud)."""
     counts, grids, selected, _ = eqx.filter_vmap(lambda c: _pattern_sizes(c, config))(clouds)
-    return _filled(config, int(jnp.max(counts)), int(jnp.max(grids)), int(jnp.max(selected)))
+    return int(jnp.max(counts)), int(jnp.max(grids)), int(jnp.max(selected))
 
 
 def sized_batch_config(pairs: Sequence[tuple[Cloud, Cloud]], config: Config) -> Config:
@@ -223,9 +229,9 @@ def sized_stacked_config(prev: Cloud, curr: Cloud, config: Config) -> Config:
     """[`sized_batch_config`][] for pairs stacked along a leading batch axis (points
     `(B, N, 3)` and `(B, M, 3)`): the previous clouds' pattern sizes in one vmapped program
     instead of one call per pair. Python boundary only."""
-    counts, grids, selected, _ = eqx.filter_vmap(lambda c: _pattern_sizes(c, config))(prev)
+    count, grid, selected = _largest_sizes(prev, config)
     n_curr = int(np.max(np.sum(np.asarray(curr.valid), axis=-1)))
-    return _filled(config, max(int(jnp.max(counts)), n_curr), int(jnp.max(grids)), int(jnp.max(selected)))
+    return _filled(config, max(count, n_curr), grid, selected)
 
 
 def _filled(config: Config, points: int, grid: int, selected: int) -> Config:
