@@ -15,13 +15,15 @@ refine that started the first fit, and the ratio of the previous cloud's two lar
 principal moments. This shows how far apart the right and the wrong fits of a near-symmetric
 target are (docs, Findings: turns about a near-symmetry axis), and how far a fit slides
 along the faces from where the refine left it (docs, Findings: slides along the faces).
-`results/fine_runs_TARGET.json` hold every pair's fits per target (`fine_runs.py TARGET --out
+`--plane-source` sets `FineStage.plane_source` (docs, Findings: planes among every previous
+point). `results/fine_runs_TARGET.json` hold every pair's fits per target (`fine_runs.py TARGET --out
 results/fine_runs_TARGET.json`), which `fine_ranking.py` ranks by other rules.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -64,6 +66,12 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("prefixes", nargs="*", default=list(DEFAULT_PREFIXES))
     parser.add_argument("--out", type=Path, default=None, help="write the rows as JSON here")
+    parser.add_argument(
+        "--plane-source",
+        default="selected",
+        choices=("selected", "all", "all_centroids"),
+        help="FineStage.plane_source",
+    )
     args = parser.parse_args()
     rows = []
 
@@ -73,7 +81,9 @@ def main():
     for case in realistic.make_cases(8, keep=wanted):
         i = benchmark_position(case)
         prev, curr = case.prev.floating(), case.curr.floating()
-        config = sized_config(prev, curr, jp.Config())
+        default = jp.Config()
+        fine = dataclasses.replace(default.fine, plane_source=args.plane_source)
+        config = sized_config(prev, curr, dataclasses.replace(default, fine=fine))
         est, runs, (Rs, ts), (R_refine, t_refine), moments = _fits(
             prev, curr, config, jax.random.fold_in(jax.random.key(0), i)
         )
@@ -92,6 +102,7 @@ def main():
             "fits_centroid_error_cm": [round(f["centroid_error_cm"], 4) for f in fits],
             "fits_inliers": np.round(np.asarray(runs.inliers), 4).tolist(),
             "fits_rms_mm": np.round(np.asarray(runs.rms) * 1000, 2).tolist(),
+            "fits_converged": np.asarray(runs.converged).tolist(),
         }
         rows.append(row)
         print(json.dumps(row, ensure_ascii=False), flush=True)

@@ -71,10 +71,12 @@ def gicp_rows(cases, from_truth: bool = False):
 
 def benchmark_cases(args):
     """The noise levels of `args.levels` (comma-separated, cm), the benchmark's pairs at them
-    (`args.pairs` per target and level, `args.seed`) and GICP's rows on those pairs."""
+    (`args.pairs` per target and level, `args.seed`) and GICP's rows on those pairs, from the
+    true motion where `args.peer_from_truth` is set (scripts without that flag: from the
+    identity)."""
     levels = tuple(float(x) for x in args.levels.split(","))
     cases = realistic.make_cases(pairs=args.pairs, levels=levels, seed=args.seed)
-    return levels, cases, gicp_rows(cases, args.peer_from_truth)
+    return levels, cases, gicp_rows(cases, getattr(args, "peer_from_truth", False))
 
 
 def jaxpose_rows(cases, config):
@@ -168,6 +170,11 @@ def fine_with(config, name: str, value):
     return dataclasses.replace(config.fine, **{name: value})
 
 
+def fine_config(config, **settings):
+    """`config` with its fine stage's `settings` changed."""
+    return dataclasses.replace(config, fine=dataclasses.replace(config.fine, **settings))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=3)
@@ -181,6 +188,7 @@ def main():
             "gates",
             "edges",
             "density",
+            "planes",
             "current",
             "symmetric",
             "stages",
@@ -238,6 +246,25 @@ def main():
                 dataclasses.replace(default, fine=fine_with(default, "prev_points", 2**20)),
                 {},
             ),
+        ]
+    if args.set == "planes":
+        variants = [
+            (
+                "FineStage(plane_source='selected'): planes among the thinned previous side",
+                fine_config(default, plane_source="selected"),
+                {},
+            ),
+            (
+                "FineStage(plane_source='all'): planes among every previous point",
+                fine_config(default, plane_source="all"),
+                {},
+            ),
+            (
+                "FineStage(plane_source='all_centroids'): normals among the thinned side, centroids among every point",
+                fine_config(default, plane_source="all_centroids"),
+                {},
+            ),
+            ("FineStage(prev_points=2**20): every previous point", fine_config(default, prev_points=2**20), {}),
         ]
     if args.set == "current":
         variants = [

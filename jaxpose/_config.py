@@ -353,6 +353,18 @@ class FineStage(eqx.Module):
       and the median centroid error at 1 and 2 cm, but found two pairs fewer at 2 cm on one
       draw, was mixed at 0.5 cm, and the neighbour search over the current cloud made the
       median call 26–100 ms longer (docs, Findings: a smoothed current side).
+    - `plane_source`: which previous points each selected previous point's plane is fitted
+      to (static): "selected" (the default), its `neighbours` nearest among the selected
+      points; "all", its `neighbours` nearest among every previous point; "all_centroids",
+      the normal among the selected points and the centroid (the "hybrid" and "centroid"
+      anchors' point) among every previous point. They differ only on views of more than
+      `points` previous points, which the selection thins: there the selected points'
+      `neighbours` nearest span a wider patch, whose centroid lies deeper inside a curved
+      surface (`_fine._planes_from_every_point`). Either costs one more neighbour search, over
+      every previous point. Off by default: fitted from the true motion, "all" brought the fine
+      objective's minimum nearer the truth at σ 0.5, 1 and 2 cm, but on the realistic
+      benchmark's whole calls neither option kept the gain, and both found two pairs fewer at
+      σ 2 cm (docs, Findings: planes among every previous point).
     - `symmetric`: two-way residuals (static; needs `prev_slab` and `curr_slab` inf): each
       round also matches `_fine.BACK_POINTS` previous points that have a plane (thinned
       evenly) to their nearest current points and adds their distances to those points'
@@ -387,6 +399,7 @@ class FineStage(eqx.Module):
     neighbours: int = eqx.field(static=True, default=20)
     anchor: Literal["point", "centroid", "hybrid"] = eqx.field(static=True, default="hybrid")
     smooth_current: bool = eqx.field(static=True, default=False)
+    plane_source: Literal["selected", "all", "all_centroids"] = eqx.field(static=True, default="selected")
     symmetric: bool = eqx.field(static=True, default=False)
     rounds: int = eqx.field(static=True, default=20)
     steps: int = eqx.field(static=True, default=20)
@@ -395,6 +408,10 @@ class FineStage(eqx.Module):
     def __check_init__(self):
         if self.anchor not in ("centroid", "point", "hybrid"):
             raise ValueError(f"FineStage.anchor must be 'hybrid', 'centroid' or 'point', got {self.anchor!r}.")
+        if self.plane_source not in ("selected", "all", "all_centroids"):
+            raise ValueError(
+                f"FineStage.plane_source must be 'selected', 'all' or 'all_centroids', got {self.plane_source!r}."
+            )
         if min(self.points, self.neighbours - 2, self.steps, self.rounds) < 1 or not self.tol > 0:
             raise ValueError("FineStage needs points ≥ 1, neighbours ≥ 3, steps ≥ 1, rounds ≥ 1 and tol > 0.")
         if self.symmetric and (math.isfinite(self.curr_slab) or math.isfinite(self.prev_slab)):

@@ -296,6 +296,39 @@ def _most_planar(hood: Neighbourhoods, live: Bool[Array, " K"]):
     return most_planar
 
 
+def _planes_from_every_point(
+    A: Float[Array, "3 N"],
+    near: Bool[Array, " N"],
+    P: Float[Array, "3 K"],
+    live,
+    thinned: Neighbourhoods,
+    k: int,
+    centroids_only: bool = False,
+) -> Neighbourhoods:
+    """The planes of the selected points `P` fitted to their `k` nearest points among every
+    previous point `A` (`near`), where the selection thinned them (more than K points);
+    `thinned` (the planes among the selected points) where it did not, as those are the same.
+
+    The selection is evenly spread, so on a view of more than K points its k nearest span a
+    wider patch than the cloud's own: a plane through their centroid lies farther inside a
+    curved surface, and its normal turns with the patch. Among every point the patch is the
+    sensor's own sampling, at the cost of one more neighbour search over a grid of every point.
+    Only the planes change: the graph of the selected points (`FineCloud.graph`, `radius`)
+    stays the thinned one, which the matching descends. `centroids_only` ("all_centroids"):
+    keep the thinned normals and scatter (so the planarity ranks) and take only the centroids
+    among every point."""
+    count = jnp.sum(near)
+
+    def every_point():
+        grid = voxel_grid(A, near, NEIGHBOUR_VOXEL * voxel_spacing(A, near))
+        hood = neighbourhood_planes(grid, A, P, min(k, A.shape[1]))
+        if centroids_only:
+            return thinned._replace(centroid=hood.centroid)
+        return hood._replace(index=thinned.index, radius=thinned.radius, enough=hood.enough & live)
+
+    return jax.lax.cond(count > P.shape[1], every_point, lambda: thinned)
+
+
 def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Config, planes, d) -> FineCloud:
     """The previous side of the fine stage from the previous points in frame n (rows)."""
     stage = FineStage(points=1) if config.fine is None else config.fine  # None: one empty slot
@@ -306,7 +339,10 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     P = A[:, idx]
     grid = voxel_grid(P, live, NEIGHBOUR_VOXEL * voxel_spacing(P, live))
     hood = neighbourhood_planes(grid, P, P, min(stage.neighbours, K))
-    centroid, normal, graph = hood.centroid, hood.normal, hood.index
+    graph = hood.index
+    if stage.plane_source != "selected":
+        hood = _planes_from_every_point(A, near, P, live, hood, stage.neighbours, stage.plane_source == "all_centroids")
+    centroid, normal = hood.centroid, hood.normal
     # Keep the `FineStage.planar_fraction` most planar points (all by default).
     most_planar = _most_planar(hood, live)
     ok = most_planar(stage.planar_fraction)

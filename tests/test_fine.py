@@ -10,6 +10,7 @@ import pytest
 from conftest import PAPER_CAPACITIES, T_PAPER, paper_rotation
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from jaxtyping import TypeCheckError
 
 import jaxpose as jp
 from jaxpose._fine import (
@@ -149,6 +150,80 @@ def test_plane_offsets_through_the_centroid_average_the_range_noise():
         rms[anchor] = float(np.sqrt(np.mean(height**2)))
     assert rms["point"] > 0.007  # ≈ 1 cm · cos 30°
     assert rms["centroid"] < 0.4 * rms["point"], rms
+
+
+def _cylinder_patch(radius: float, step: float) -> np.ndarray:
+    """Noise-free points, `step` apart, on a quarter of a cylinder of `radius` about the y
+    axis, 0.6 m long. Rows, metres."""
+    angles = np.arange(0.0, np.pi / 2, step / radius)
+    ys = np.arange(-0.3, 0.3, step)
+    a, y = np.meshgrid(angles, ys, indexing="ij")
+    return np.stack([radius * np.sin(a).ravel(), y.ravel(), radius * np.cos(a).ravel()], 1)
+
+
+def _plane_depths(fine) -> np.ndarray:
+    """How far each plane with a normal lies from its (noise-free) point, along the normal."""
+    ok = np.asarray(fine.valid)
+    normals, points = np.asarray(fine.normals).T[ok], np.asarray(fine.points).T[ok]
+    return np.abs(np.asarray(fine.offsets)[ok] - np.sum(normals * points, axis=1))
+
+
+def _reference_depths(points: np.ndarray, among: np.ndarray, k: int = 20) -> np.ndarray:
+    """Numpy reference: how far the plane through the centroid of each point's `k` nearest
+    points in `among` (least-scatter normal) lies from the point."""
+    d2 = np.sum((points[:, None] - among[None]) ** 2, axis=2)
+    hoods = among[np.argsort(d2, axis=1)[:, :k]]
+    centroids = hoods.mean(axis=1)
+    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", hoods - centroids[:, None], hoods - centroids[:, None]))[1][
+        ..., 0
+    ]
+    return np.abs(np.sum(normals * (points - centroids), axis=1))
+
+
+def test_planes_among_every_point_follow_a_curved_surface_that_the_selection_thins():
+    # About 3800 points 1 cm apart on a cylinder of radius 0.4 m, in random order so that the
+    # even selection of 512 is an even subsample of the surface: the 20 nearest selected points
+    # span a patch about √(3800/512) ≈ 2.7 times as wide as the 20 nearest of all, so the plane
+    # through their centroid lies deeper inside the curve. Among every point the depths match
+    # a numpy reference (exact nearest neighbours, eigh); among the selected ones the voxel
+    # search's reach (27 voxels of two sampling steps) leaves the patch narrower than the
+    # exact 20 nearest of this irregular subsample, which only narrows the gap.
+    # "all_centroids" keeps the selection's normal and takes the centroid among every point.
+    pts = _cylinder_patch(0.4, 0.01)
+    pts = pts[np.random.default_rng(0).permutation(len(pts))]
+    depth = {}
+    for source in ("selected", "all", "all_centroids"):
+        config = jp.Config(fine=jp.FineStage(points=512, anchor="centroid", plane_source=source))
+        fine = fine_cloud(jnp.asarray(pts), jnp.ones(len(pts), bool), config, ((2, 0.0),), jnp.asarray(0.026))
+        depth[source] = float(np.median(_plane_depths(fine)))
+        selected = np.asarray(fine.points).T[np.asarray(fine.valid)]
+    reference = float(np.median(_reference_depths(selected, pts)))
+    assert depth["all"] == pytest.approx(reference, rel=0.1), (depth, reference)
+    assert depth["all"] < 0.5 * depth["selected"], depth
+    assert depth["all_centroids"] < 0.5 * depth["selected"], depth
+
+
+def test_an_unknown_plane_source_is_refused():
+    # The tests type-check the constructor (jaxtyping), which refuses the value first.
+    with pytest.raises((ValueError, TypeCheckError), match="plane_source"):
+        jp.FineStage(plane_source="every")
+
+
+def test_planes_among_every_point_are_the_selections_where_nothing_is_thinned():
+    pts = jnp.asarray(_cylinder_patch(0.4, 0.02))  # 960 points, under the 2048 slots
+    built = {
+        source: fine_cloud(
+            pts,
+            jnp.ones(len(pts), bool),
+            jp.Config(fine=jp.FineStage(points=2048, plane_source=source)),
+            ((2, 0.0),),
+            jnp.asarray(0.026),
+        )
+        for source in ("selected", "all", "all_centroids")
+    }
+    for source in ("all", "all_centroids"):
+        for a, b in zip(jax.tree.leaves(built["selected"]), jax.tree.leaves(built[source]), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def _ridge(noise_cm: float, seed: int = 0) -> np.ndarray:
