@@ -180,6 +180,7 @@ def _reference_depths(points: np.ndarray, among: np.ndarray, k: int = 20) -> np.
     return np.abs(np.sum(normals * (points - centroids), axis=1))
 
 
+@pytest.mark.slow  # an option off by default
 def test_planes_among_every_point_follow_a_curved_surface_that_the_selection_thins():
     # About 3800 points 1 cm apart on a cylinder of radius 0.4 m, in random order so that the
     # even selection of 512 is an even subsample of the surface: the 20 nearest selected points
@@ -209,6 +210,7 @@ def test_an_unknown_plane_source_is_refused():
         jp.FineStage(plane_source="every")
 
 
+@pytest.mark.slow  # an option off by default
 def test_planes_among_every_point_are_the_selections_where_nothing_is_thinned():
     pts = jnp.asarray(_cylinder_patch(0.4, 0.02))  # 960 points, under the 2048 slots
     built = {
