@@ -15,13 +15,13 @@ planes among every previous point).
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 from pathlib import Path
+
+from fine_variants import fine_config
 
 import jaxpose as jp
 from jaxpose.evaluation.bench import machine
-from jaxpose.evaluation.realistic import available_peers, make_cases, markdown, run_jaxpose, run_peer, summarise
+from jaxpose.evaluation.realistic import available_peers, make_cases, run_jaxpose, run_peer, write_report
 
 
 def main():
@@ -31,29 +31,17 @@ def main():
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("results"))
     args = parser.parse_args()
-    default = jp.Config()
-    config = dataclasses.replace(default, fine=dataclasses.replace(default.fine, plane_source=args.plane_source))
+    config = fine_config(jp.Config(), plane_source=args.plane_source)
     cases = make_cases(args.pairs, args.seed)
     rows, first_calls = run_jaxpose(cases, config, seed=args.seed)
     peers, missing = available_peers()
     for name, align in peers.items():
         rows += run_peer(name, align, cases)
-    by_noise, by_target = summarise(rows, ("sigma_cm",)), summarise(rows, ("target", "sigma_cm"))
-    text = f"jaxpose config: default with FineStage.plane_source={args.plane_source!r}; {len(cases)} pairs, "
-    text += f"seed {args.seed}.\n\n## By noise level\n\n" + markdown(by_noise)
-    text += "\n\n## By target and noise level\n\n" + markdown(by_target, ("target", "sigma_cm"))
-    firsts = ", ".join(f"{s:.1f} s" for s in first_calls.values())
-    text += f"\n\njaxpose first call per capacity bucket (compilation included, not in the times above): {firsts}."
-    if missing:
-        text += "\n\nNot run here: " + "; ".join(f"{k} ({v})" for k, v in missing.items())
-    print(text)
-    args.out.mkdir(parents=True, exist_ok=True)
     stem = args.out / f"realistic_planes_{args.plane_source}"
-    stem.with_suffix(".md").write_text(text + "\n")
-    payload = {"machine": machine(), "pairs": len(cases), "seed": args.seed, "plane_source": args.plane_source}
-    payload |= {"by_noise": by_noise, "by_target": by_target}
-    payload |= {"first_calls_s": list(first_calls.values()), "missing": missing, "rows": rows}
-    stem.with_suffix(".json").write_text(json.dumps(payload, indent=2, default=float))
+    header = f"jaxpose config: default with FineStage.plane_source={args.plane_source!r}; "
+    header += f"{len(cases)} pairs, seed {args.seed}."
+    head = {"machine": machine(), "pairs": len(cases), "seed": args.seed, "plane_source": args.plane_source}
+    print(write_report(stem, header, rows, first_calls, missing, head))
     print(f"wrote {stem}.md and .json")
 
 

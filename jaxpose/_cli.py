@@ -216,10 +216,8 @@ def benchmark(
     """The realistic benchmark: every built-in target, random views and motions of 1–15°,
     2–6.5 m, ToF range noise 0–2 cm, dropout, flying pixels; jaxpose's public `estimate`
     against small_gicp GICP and Open3D point-to-plane ICP on the same clouds."""
-    import json
-
     from .evaluation.bench import machine
-    from .evaluation.realistic import available_peers, make_cases, markdown, plot, run_jaxpose, run_peer, summarise
+    from .evaluation.realistic import available_peers, make_cases, run_jaxpose, run_peer, write_report
 
     _enable_compile_cache()
     typer.echo("simulating the pairs …")
@@ -232,22 +230,9 @@ def benchmark(
         for name, align in peers.items():
             task = bar.add_task(name, total=len(cases))
             rows += run_peer(name, align, cases, progress=lambda t=task: bar.advance(t))
-    by_noise, by_target = summarise(rows, ("sigma_cm",)), summarise(rows, ("target", "sigma_cm"))
-    text = f"jaxpose config: {preset}; {len(cases)} pairs, seed {seed}.\n\n"
-    text += "## By noise level\n\n" + markdown(by_noise) + "\n\n## By target and noise level\n\n"
-    text += markdown(by_target, ("target", "sigma_cm"))
-    firsts = ", ".join(f"{s:.1f} s" for s in first_calls.values())
-    text += f"\n\njaxpose first call per capacity bucket (compilation included, not in the times above): {firsts}."
-    if missing:
-        text += "\n\nNot run here: " + "; ".join(f"{k} ({v})" for k, v in missing.items())
-    typer.echo(text)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "realistic.md").write_text(text + "\n")
-    plot(by_noise, out / "realistic.png")
-    payload = {"machine": machine(), "pairs": len(cases), "seed": seed, "preset": preset}
-    payload |= {"by_noise": by_noise, "by_target": by_target}
-    payload |= {"first_calls_s": list(first_calls.values()), "missing": missing, "rows": rows}
-    (out / "realistic.json").write_text(json.dumps(payload, indent=2, default=float))
+    header = f"jaxpose config: {preset}; {len(cases)} pairs, seed {seed}."
+    head = {"machine": machine(), "pairs": len(cases), "seed": seed, "preset": preset}
+    typer.echo(write_report(out / "realistic", header, rows, first_calls, missing, head, with_plot=True))
     typer.echo(f"wrote {out / 'realistic.md'}, .json and .png")
 
 

@@ -419,6 +419,36 @@ def plot(summary: list[dict], path) -> None:
     plt.close(fig)
 
 
+def write_report(
+    stem, header: str, rows: list[dict], first_calls: dict, missing: dict, head: dict, with_plot: bool = False
+) -> str:
+    """The benchmark's report of `rows` (`run_jaxpose` and `run_peer`): `header` (one
+    sentence: the config and the pairs), the tables by noise level and by target and noise
+    level, the first call of each capacity bucket and the peers that did not run. Writes it to
+    `stem`.md, and to `stem`.json with `head` (the machine, the pairs, the settings) first,
+    then the summaries, the first calls, the missing peers and every row; with `with_plot`,
+    the plot by noise level to `stem`.png. Returns the text."""
+    import json
+    from pathlib import Path
+
+    stem = Path(stem)
+    by_noise, by_target = summarise(rows, ("sigma_cm",)), summarise(rows, ("target", "sigma_cm"))
+    text = f"{header}\n\n## By noise level\n\n" + markdown(by_noise) + "\n\n## By target and noise level\n\n"
+    text += markdown(by_target, ("target", "sigma_cm"))
+    firsts = ", ".join(f"{s:.1f} s" for s in first_calls.values())
+    text += f"\n\njaxpose first call per capacity bucket (compilation included, not in the times above): {firsts}."
+    if missing:
+        text += "\n\nNot run here: " + "; ".join(f"{k} ({v})" for k, v in missing.items())
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    stem.with_suffix(".md").write_text(text + "\n")
+    if with_plot:
+        plot(by_noise, stem.with_suffix(".png"))
+    payload = {**head, "by_noise": by_noise, "by_target": by_target}
+    payload |= {"first_calls_s": list(first_calls.values()), "missing": missing, "rows": rows}
+    stem.with_suffix(".json").write_text(json.dumps(payload, indent=2, default=float))
+    return text
+
+
 __all__ = [
     "FOUND_CM",
     "LEVELS_CM",
@@ -430,4 +460,5 @@ __all__ = [
     "run_jaxpose",
     "run_peer",
     "summarise",
+    "write_report",
 ]
