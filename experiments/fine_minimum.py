@@ -21,10 +21,9 @@ Findings: a smoothed current side). Ends with the median errors per noise level.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import statistics
 
-from fine_variants import benchmark_cases, jaxpose_rows, truth_rows
+from fine_variants import benchmark_cases, fine_config, jaxpose_rows, truth_rows
 
 import jaxpose as jp
 from jaxpose import _fine
@@ -40,7 +39,7 @@ def main():
     levels, cases, gicp = benchmark_cases(args)
     config = jp.Config()
     if args.smooth_current != "off":
-        config = dataclasses.replace(config, fine=dataclasses.replace(config.fine, smooth_current=True))
+        config = fine_config(config, smooth_current=True)
     if args.smooth_current == "all":
         _fine.SMOOTHED_FRACTION = 1.0
     whole, _ = jaxpose_rows(cases, config)

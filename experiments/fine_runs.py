@@ -23,7 +23,6 @@ results/fine_runs_TARGET.json`), which `fine_ranking.py` ranks by other rules.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 
@@ -31,6 +30,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from fine_variants import fine_config
 
 import jaxpose as jp
 from jaxpose._estimate import STATUS_NAME, estimate_problem, fine_passes, symmetry_turns
@@ -73,6 +73,7 @@ def main():
         help="FineStage.plane_source",
     )
     args = parser.parse_args()
+    base = fine_config(jp.Config(), plane_source=args.plane_source)
     rows = []
 
     def wanted(label):
@@ -81,9 +82,7 @@ def main():
     for case in realistic.make_cases(8, keep=wanted):
         i = benchmark_position(case)
         prev, curr = case.prev.floating(), case.curr.floating()
-        default = jp.Config()
-        fine = dataclasses.replace(default.fine, plane_source=args.plane_source)
-        config = sized_config(prev, curr, dataclasses.replace(default, fine=fine))
+        config = sized_config(prev, curr, base)
         est, runs, (Rs, ts), (R_refine, t_refine), moments = _fits(
             prev, curr, config, jax.random.fold_in(jax.random.key(0), i)
         )

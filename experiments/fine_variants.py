@@ -165,11 +165,6 @@ def report_by_target(cases, rows, gicp, levels):
             print(f"    σ {sigma} cm {target}: {line}")
 
 
-def fine_with(config, name: str, value):
-    """`config.fine` with one setting changed."""
-    return dataclasses.replace(config.fine, **{name: value})
-
-
 def fine_config(config, **settings):
     """`config` with its fine stage's `settings` changed."""
     return dataclasses.replace(config, fine=dataclasses.replace(config.fine, **settings))
@@ -204,8 +199,8 @@ def main():
     args = parser.parse_args()
     levels, cases, gicp = benchmark_cases(args)
     default = jp.Config()
-    point = dataclasses.replace(default, fine=dataclasses.replace(default.fine, anchor="point"))
-    centroid = dataclasses.replace(default, fine=dataclasses.replace(default.fine, anchor="centroid"))
+    point = fine_config(default, anchor="point")
+    centroid = fine_config(default, anchor="centroid")
     variants = [
         ("default", default, {}),
         ("planes through the centroids", centroid, {}),
@@ -216,24 +211,20 @@ def main():
     if args.set == "cost":
         settings = (("points", 2048), ("points", 8192), ("steps", 8), ("rounds", 10), ("neighbours", 12))
         variants = [("default", default, {})] + [
-            (f"FineStage({name}={value})", dataclasses.replace(default, fine=fine_with(default, name, value)), {})
-            for name, value in settings
+            (f"FineStage({name}={value})", fine_config(default, **{name: value}), {}) for name, value in settings
         ]
     if args.set == "gates":
         settings = (("inlier", 0.05), ("inlier", 0.08), ("planar_fraction", 0.85))
         variants = [
             ("default", default, {}),
-            *(
-                (f"FineStage({name}={value})", dataclasses.replace(default, fine=fine_with(default, name, value)), {})
-                for name, value in settings
-            ),
+            *((f"FineStage({name}={value})", fine_config(default, **{name: value}), {}) for name, value in settings),
             ("ROBUST_SCALE = 10", default, {"ROBUST_SCALE": 10.0}),
         ]
     if args.set == "edges":
         variants = [
             (
                 f"FineStage(planar_fraction={value})",
-                dataclasses.replace(default, fine=fine_with(default, "planar_fraction", value)),
+                fine_config(default, planar_fraction=value),
                 {},
             )
             for value in (1.0, 0.85, 0.7)
@@ -243,7 +234,7 @@ def main():
             ("default (previous side thinned to FineStage.points)", default, {}),
             (
                 "FineStage(prev_points=2**20): every previous point",
-                dataclasses.replace(default, fine=fine_with(default, "prev_points", 2**20)),
+                fine_config(default, prev_points=2**20),
                 {},
             ),
         ]
@@ -271,12 +262,12 @@ def main():
             ("default (raw current points)", default, {}),
             (
                 "FineStage(smooth_current=True): face-like current points smoothed",
-                dataclasses.replace(default, fine=fine_with(default, "smooth_current", True)),
+                fine_config(default, smooth_current=True),
                 {},
             ),
             (
                 "FineStage(smooth_current=True), every current point with a plane smoothed",
-                dataclasses.replace(default, fine=fine_with(default, "smooth_current", True)),
+                fine_config(default, smooth_current=True),
                 {"SMOOTHED_FRACTION": 1.0},
             ),
         ]
@@ -285,17 +276,17 @@ def main():
             ("default (one-way residuals)", default, {}),
             (
                 "FineStage(symmetric=True): two-way residuals",
-                dataclasses.replace(default, fine=fine_with(default, "symmetric", True)),
+                fine_config(default, symmetric=True),
                 {},
             ),
             (
                 "FineStage(prev_points=2**20): every previous point, one-way",
-                dataclasses.replace(default, fine=fine_with(default, "prev_points", 2**20)),
+                fine_config(default, prev_points=2**20),
                 {},
             ),
             (
                 "FineStage(symmetric=True, prev_points=2**20): two-way against every previous point",
-                dataclasses.replace(default, fine=dataclasses.replace(default.fine, symmetric=True, prev_points=2**20)),
+                fine_config(default, symmetric=True, prev_points=2**20),
                 {},
             ),
         ]
@@ -308,16 +299,16 @@ def main():
     if args.set == "objective":
         variants = [
             ("default", default, {}),
-            ("FineStage(symmetric=True)", dataclasses.replace(default, fine=fine_with(default, "symmetric", True)), {}),
-            ("FineStage(points=8192)", dataclasses.replace(default, fine=fine_with(default, "points", 8192)), {}),
+            ("FineStage(symmetric=True)", fine_config(default, symmetric=True), {}),
+            ("FineStage(points=8192)", fine_config(default, points=8192), {}),
             (
                 "FineStage(symmetric=True, points=8192)",
-                dataclasses.replace(default, fine=dataclasses.replace(default.fine, symmetric=True, points=8192)),
+                fine_config(default, symmetric=True, points=8192),
                 {},
             ),
             (
                 "FineStage(symmetric=True, anchor='point'): GICP-like",
-                dataclasses.replace(default, fine=dataclasses.replace(default.fine, symmetric=True, anchor="point")),
+                fine_config(default, symmetric=True, anchor="point"),
                 {},
             ),
         ]
@@ -326,7 +317,7 @@ def main():
             ("default (starts: the search's best and rest)", default, {}),
             (
                 "FineStage(from_principal=True): also the principal alignment nearest the identity",
-                dataclasses.replace(default, fine=fine_with(default, "from_principal", True)),
+                fine_config(default, from_principal=True),
                 {},
             ),
         ]

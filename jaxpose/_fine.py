@@ -300,7 +300,6 @@ def _planes_from_every_point(
     A: Float[Array, "3 N"],
     near: Bool[Array, " N"],
     P: Float[Array, "3 K"],
-    live,
     thinned: Neighbourhoods,
     k: int,
     centroids_only: bool = False,
@@ -324,7 +323,7 @@ def _planes_from_every_point(
         hood = neighbourhood_planes(grid, A, P, min(k, A.shape[1]))
         if centroids_only:
             return thinned._replace(centroid=hood.centroid)
-        return hood._replace(index=thinned.index, radius=thinned.radius, enough=hood.enough & live)
+        return hood._replace(index=thinned.index, radius=thinned.radius)
 
     return jax.lax.cond(count > P.shape[1], every_point, lambda: thinned)
 
@@ -341,7 +340,7 @@ def fine_cloud(prev_n: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Co
     hood = neighbourhood_planes(grid, P, P, min(stage.neighbours, K))
     graph = hood.index
     if stage.plane_source != "selected":
-        hood = _planes_from_every_point(A, near, P, live, hood, stage.neighbours, stage.plane_source == "all_centroids")
+        hood = _planes_from_every_point(A, near, P, hood, stage.neighbours, stage.plane_source == "all_centroids")
     centroid, normal = hood.centroid, hood.normal
     # Keep the `FineStage.planar_fraction` most planar points (all by default).
     most_planar = _most_planar(hood, live)
