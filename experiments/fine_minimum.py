@@ -1,7 +1,7 @@
 """Each pair's end-to-end estimate beside the fine objective's own minimum, and GICP's.
 
 `uv run --extra peers python experiments/fine_minimum.py [--pairs 4] [--seed 0] [--levels 0.5]
-[--smooth-current off|faces|all]`
+[--smooth-current off|faces|all] [--plane-source selected|all|all_centroids]`
 
 For `--pairs` pairs per target and noise level of the realistic benchmark
 (`jaxpose.evaluation.realistic.make_cases`), prints one line per pair: the rotation (°) and
@@ -15,7 +15,8 @@ committed (docs, Findings: where the errors at 0.5 cm of noise come from).
 
 `--smooth-current faces` runs both with `FineStage(smooth_current=True)`, `all` also with
 every current point that has a plane smoothed (`_fine.SMOOTHED_FRACTION` = 1; docs,
-Findings: a smoothed current side). Ends with the median errors per noise level.
+Findings: a smoothed current side). `--plane-source` sets `FineStage.plane_source` in both
+(docs, Findings: planes among every previous point). Ends with the median errors per noise level.
 """
 
 from __future__ import annotations
@@ -35,11 +36,14 @@ def main():
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--levels", default="0.5")
     parser.add_argument("--smooth-current", default="off", choices=("off", "faces", "all"))
+    parser.add_argument("--plane-source", default="selected", choices=("selected", "all", "all_centroids"))
     args = parser.parse_args()
     levels, cases, gicp = benchmark_cases(args)
     config = jp.Config()
     if args.smooth_current != "off":
         config = fine_config(config, smooth_current=True)
+    if args.plane_source != "selected":
+        config = fine_config(config, plane_source=args.plane_source)
     if args.smooth_current == "all":
         _fine.SMOOTHED_FRACTION = 1.0
     whole, _ = jaxpose_rows(cases, config)
