@@ -378,6 +378,18 @@ class FineStage(eqx.Module):
       median rotation error at σ 0.5–2 cm and the median centroid error at 1 cm, and each
       call took 1.1–1.25 times as long, but it added a false success at 2 cm (docs,
       Findings: two-way residuals).
+    - `residual`: "point_to_plane" (the default) or "plane_to_plane" (static; needs
+      `prev_slab` and `curr_slab` inf and `prev_points` None). "plane_to_plane" is GICP's
+      cost for planar neighbourhoods: each current point also gets its own plane, fitted to
+      the current cloud as the previous side's are (`Problem.fine_back`), and each round
+      measures its distance along the mean of the two matched normals, weighted by
+      2ε / (1 − cos θ + 2ε) with θ the angle between them and ε = `_fine.PLANE_EPSILON`
+      (the weight of two planes of covariance diag(ε, 1, 1) whose normals differ by θ), so
+      that a match across an edge, or between noisy normals, counts less
+      (`_fine.combined_planes`). The noise-free polish stays point-to-plane. Off by default:
+      on four draws of the realistic benchmark (896 pairs) it was worse than point-to-plane
+      at σ 0.5, 1 and 2 cm, with 28 false successes against 9 (docs, Findings: four draws
+      at once).
     - `rounds`: most match-then-solve rounds (static).
     - `steps`, `tol`: Gauss–Newton's step limit per round and its rtol = atol, in units
       of 1° and 1 cm (static). At 1e-4, on the paper's pairs × 3 keys every result is within
@@ -401,6 +413,7 @@ class FineStage(eqx.Module):
     smooth_current: bool = eqx.field(static=True, default=False)
     plane_source: Literal["selected", "all", "all_centroids"] = eqx.field(static=True, default="selected")
     symmetric: bool = eqx.field(static=True, default=False)
+    residual: Literal["point_to_plane", "plane_to_plane"] = eqx.field(static=True, default="point_to_plane")
     rounds: int = eqx.field(static=True, default=20)
     steps: int = eqx.field(static=True, default=20)
     tol: float = eqx.field(static=True, default=1e-4)
@@ -411,6 +424,15 @@ class FineStage(eqx.Module):
         if self.plane_source not in ("selected", "all", "all_centroids"):
             raise ValueError(
                 f"FineStage.plane_source must be 'selected', 'all' or 'all_centroids', got {self.plane_source!r}."
+            )
+        if self.residual not in ("point_to_plane", "plane_to_plane"):
+            raise ValueError(f"FineStage.residual must be 'point_to_plane' or 'plane_to_plane', got {self.residual!r}.")
+        if self.residual == "plane_to_plane" and (
+            math.isfinite(self.curr_slab) or math.isfinite(self.prev_slab) or self.prev_points is not None
+        ):
+            raise ValueError(
+                "FineStage.residual='plane_to_plane' needs the whole surface on both sides (prev_slab = curr_slab = "
+                "inf) and prev_points None: each current point's own plane is fitted among the same selection."
             )
         if min(self.points, self.neighbours - 2, self.steps, self.rounds) < 1 or not self.tol > 0:
             raise ValueError("FineStage needs points ≥ 1, neighbours ≥ 3, steps ≥ 1, rounds ≥ 1 and tol > 0.")

@@ -438,7 +438,14 @@ def fine_passes(
         start = jnp.where(polish, best.params, start)
         active = jnp.where(polish, without_range_noise(best), active)
         run = fine_refine(
-            problem, config, start, tree_select(polish, exact, fine), active=active, smooth=~polish, two_way=~polish
+            problem,
+            config,
+            start,
+            tree_select(polish, exact, fine),
+            active=active,
+            smooth=~polish,
+            two_way=~polish,
+            combine=~polish,
         )
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 

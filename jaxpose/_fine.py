@@ -419,9 +419,11 @@ def current_side(curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Co
 
 def back_side(curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Config, planes, d) -> FineCloud | None:
     """The current points (frame n, SoA, metres) with their planes, as [`fine_cloud`][] builds
-    the previous side's, for the two-way residuals of `FineStage.symmetric`; None where the
-    config does not ask for them."""
-    if config.fine is None or not config.fine.symmetric:
+    the previous side's, for the two-way residuals of `FineStage.symmetric` and the
+    plane-to-plane residuals of `FineStage.residual`; None where the config asks for neither.
+    With the whole surface on both sides its slot s holds the current point that
+    [`select_current`][] puts in slot s (the same even thinning of the same mask)."""
+    if config.fine is None or not (config.fine.symmetric or config.fine.residual == "plane_to_plane"):
         return None
     return fine_cloud(curr.T, valid, config, planes, d)
 
@@ -505,6 +507,42 @@ def _residuals(p, b, matched: Matches, weight):
     0.10.2; two of its columns equal, so a singular covariance and a wrong Levenberg–Marquardt
     step), while the eager Jacobian was right. `tests/test_fine.py` compares the two."""
     return _plane_distance(_moved(p, b), matched, weight)
+
+
+PLANE_EPSILON = 1e-3
+"""ε of the plane-to-plane residuals (`FineStage.residual`): each neighbourhood is a plane of
+covariance diag(ε, 1, 1) in its normal's frame, as GICP regularises its covariances."""
+
+
+def combined_planes(matched: Matches, curr: FineCloud, p: Float[Array, "6"], on) -> tuple[Matches, Float[Array, " S"]]:
+    """Plane-to-plane matches at p (frame n, radians and metres): each match's plane turned to
+    the mean of the previous normal and the current point's own normal (`curr.normals`, moved
+    into frame ν), through the point of the previous plane nearest the previous point, and its
+    weight 2ε / (1 − cos θ + 2ε), θ the angle between the two normals, ε = `PLANE_EPSILON`.
+
+    Why: for two planar neighbourhoods of covariance diag(ε, 1, 1), GICP's weight of the
+    distance along the mean normal is 1 / (1 − cos θ + 2ε) (the smallest eigenvalue of the
+    sum of the two covariances, to first order); the in-plane directions, weighted about
+    1 / 2, are left to the point-to-point term (`POINT_WEIGHT`). Matches whose normals agree
+    count fully (weight 1 at θ = 0); across an edge, or between normals the noise tilted,
+    they count less. The previous plane alone decides where the current point has no plane
+    or `on` (a boolean, possibly traced) is false. Held fixed within a round, as the matches
+    are."""
+    G = rotation(p[0], p[1], p[2])
+    m = jnp.stack(rotate_components(G.T, curr.normals[0], curr.normals[1], curr.normals[2]))
+    n = matched.normals
+    cos = n[0] * m[0] + n[1] * m[1] + n[2] * m[2]
+    m = jnp.where(cos < 0, -m, m)
+    mean = n + m
+    length = jnp.sqrt(mean[0] ** 2 + mean[1] ** 2 + mean[2] ** 2)
+    usable = on & curr.valid & matched.valid & (length > 0)
+    normal = jnp.where(usable[None], mean / jnp.where(usable, length, 1.0)[None], n)
+    height = matched.offsets - (n[0] * matched.points[0] + n[1] * matched.points[1] + n[2] * matched.points[2])
+    anchor = matched.points + n * height[None]
+    offset = jnp.where(usable, normal[0] * anchor[0] + normal[1] * anchor[1] + normal[2] * anchor[2], matched.offsets)
+    eps = 2 * PLANE_EPSILON
+    weight = jnp.where(usable, eps / (1 - jnp.abs(cos) + eps), 1.0)
+    return matched._replace(normals=normal, offsets=offset), weight
 
 
 def _matches(fine: FineCloud, nearest: Int[Array, " S"], dist: Float[Array, " S"], live, inlier):
@@ -868,6 +906,7 @@ def fine_refine(
     active=True,
     smooth=True,
     two_way=True,
+    combine=True,
 ) -> FineResult:
     """Minimise the point-to-plane residuals of the selected current points from `start` (frame n).
     See the module docstring. Pure and jittable.
@@ -888,6 +927,9 @@ def fine_refine(
     ([`CurrentSide`][]), else the raw ones (the noise-free polish). `two_way` (a boolean,
     possibly traced): where the problem holds the current side's planes (`fine_back`,
     `FineStage.symmetric`), also fit the previous points to them ([`back_residuals`][]).
+    `combine` (a boolean, possibly traced): with `FineStage.residual` "plane_to_plane", fit
+    plane-to-plane ([`combined_planes`][]); else, or where false (the noise-free polish),
+    point-to-plane.
     """
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)
@@ -903,7 +945,8 @@ def fine_refine(
     solver = least_squares_solver(config.fine.tol)
 
     reach = GRAPH_SHIFT * fine.grid.size
-    back = problem.fine_back
+    back = problem.fine_back if config.fine.symmetric else None
+    own_planes = problem.fine_back if config.fine.residual == "plane_to_plane" else None
     if back is not None:
         queries, queried = back_points(fine)
         queried = queried & two_way
@@ -919,8 +962,11 @@ def fine_refine(
         local = (rounds > 0) & (shift <= reach**2) & ~finishing
         index, dist, exact = _round_matches(fine, q, live, lasts, local, rounds == 0, inlier)
         matched, weight, near = _matches(fine, index, dist, live, inlier)
+        agreement = 1.0
+        if own_planes is not None:
+            matched, agreement = combined_planes(matched, own_planes, y * scale, combine)
         r0 = _residuals(y * scale, b, matched, weight)
-        w0 = _robust_weights(r0, weight)
+        w0 = _robust_weights(r0, weight) * agreement
         root_w = jnp.sqrt(w0)
         back_terms = None if back is None else back_residuals(back, queries, queried, y * scale, inlier)
 
@@ -986,6 +1032,7 @@ __all__ = [
     "current_side",
     "back_side",
     "back_residuals",
+    "combined_planes",
     "FineCloud",
     "FineResult",
     "fine_cloud",

@@ -3,6 +3,7 @@ start a few degrees off, against the truth of the simulated pair (float64)."""
 
 import dataclasses
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,11 +14,13 @@ from hypothesis import strategies as st
 from jaxtyping import TypeCheckError
 
 import jaxpose as jp
+from jaxpose import _fine as jp_fine
 from jaxpose._fine import (
     POINT_WEIGHT,
     Matches,
     _moved,
     _residuals,
+    combined_planes,
     current_side,
     exact_surface,
     fine_cloud,
@@ -370,6 +373,82 @@ def test_two_way_fits_recover_a_noise_free_motion_and_switch_off_to_the_one_way_
         assert np.degrees(err[:3]).max() < 0.05 and 100 * err[3:].max() < 0.05, (name, err)
     np.testing.assert_array_equal(np.asarray(results["two off"].params), np.asarray(results["one"].params))
     assert int(results["two off"].steps) == int(results["one"].steps)
+
+
+def _plane_matches(normals: np.ndarray, points: np.ndarray, offsets: np.ndarray) -> Matches:
+    n = jnp.asarray(normals.T)
+    return Matches(n, jnp.asarray(offsets), jnp.ones(len(offsets), bool), jnp.asarray(points.T), n[0] == n[0])
+
+
+def test_plane_to_plane_matches_follow_gicps_weight_of_two_planes():
+    """Against an independent reference: GICP's two plane covariances diag(ε, 1, 1), summed,
+    weigh the distance along their smallest eigenvector (the mean normal) by one over the
+    smallest eigenvalue, 1 − cos θ + 2ε to first order in ε (here exact to 1e-6)."""
+    rng = np.random.default_rng(0)
+    eps = jp_fine.PLANE_EPSILON
+    prev_n = rng.normal(size=(64, 3))
+    prev_n /= np.linalg.norm(prev_n, axis=1, keepdims=True)
+    tilt = np.radians(rng.uniform(0.0, 40.0, size=64))
+    side = np.cross(prev_n, rng.normal(size=(64, 3)))
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    own = np.cos(tilt)[:, None] * prev_n + np.sin(tilt)[:, None] * side
+    own[::2] *= -1  # a normal's sign is arbitrary
+    points = rng.normal(size=(64, 3))
+    heights = rng.normal(scale=0.01, size=64)  # the anchor: off the point along its normal
+    offsets = np.sum(prev_n * points, axis=1) + heights
+    matched = _plane_matches(prev_n, points, offsets)
+    config = jp.Config()
+    built = fine_cloud(
+        jnp.asarray(rng.normal(size=(64, 3))),
+        jnp.ones(64, bool),
+        config,
+        config.patterns.planes(),
+        jnp.asarray(config.patterns.d, jnp.float64),
+    )
+    curr = eqx.tree_at(lambda c: (c.normals, c.valid), built, (jnp.asarray(own.T), jnp.ones(64, bool)))
+    out, weight = combined_planes(matched, curr, jnp.zeros(6), True)
+    for i in range(64):
+        cov = lambda n: eps * np.outer(n, n) + (np.eye(3) - np.outer(n, n))  # noqa: E731
+        values, vectors = np.linalg.eigh(cov(prev_n[i]) + cov(own[i]))
+        smallest = vectors[:, 0] * np.sign(vectors[:, 0] @ prev_n[i])
+        np.testing.assert_allclose(np.asarray(out.normals[:, i]), smallest, atol=1e-6)
+        np.testing.assert_allclose(float(weight[i]), 2 * eps / values[0], rtol=1e-2)
+    # The plane still goes through the previous plane's point nearest the previous point.
+    anchor = points + heights[:, None] * prev_n
+    np.testing.assert_allclose(np.asarray(out.offsets), np.sum(np.asarray(out.normals).T * anchor, axis=1), atol=1e-9)
+    # Off (the noise-free polish) or without a current plane: the previous plane, weight 1.
+    off, ones = combined_planes(matched, curr, jnp.zeros(6), False)
+    np.testing.assert_array_equal(np.asarray(off.normals), np.asarray(matched.normals))
+    np.testing.assert_array_equal(np.asarray(off.offsets), np.asarray(matched.offsets))
+    np.testing.assert_array_equal(np.asarray(ones), 1.0)
+
+
+def test_plane_to_plane_residuals_need_the_whole_surface_and_their_own_selection():
+    for bad in ({"prev_slab": 3.0}, {"curr_slab": 2.0}, {"prev_points": 8192}):
+        with pytest.raises(ValueError, match="plane_to_plane"):
+            jp.FineStage(residual="plane_to_plane", **bad)
+    with pytest.raises((ValueError, TypeCheckError)):
+        jp.FineStage(residual="point_to_point")
+
+
+@pytest.mark.slow  # an option off by default (`FineStage.residual`)
+def test_each_current_point_gets_its_own_plane_and_the_fit_recovers_a_noise_free_motion(paper_clouds):
+    """The current side's slot s is the current point the fit selects in slot s, and from a
+    start 2° off on the paper's noise-free N5 pair the plane-to-plane fit ends at the truth."""
+    prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
+    config = dataclasses.replace(WHOLE_CLOUD, fine=dataclasses.replace(WHOLE_CLOUD.fine, residual="plane_to_plane"))
+    problem = jp.Problem.build(prev, curr, config)
+    assert jp.Problem.build(prev, curr, WHOLE_CLOUD).fine_back is None
+    b, live = select_current(problem, config, jnp.zeros(6))
+    np.testing.assert_array_equal(np.asarray(problem.fine_back.points), np.asarray(jnp.where(live[None], b, 0.0)))
+    truth = jp.true_displacement(
+        problem.frame, paper_rotation("previous"), T_PAPER, paper_rotation("variant2"), T_PAPER
+    )
+    start = truth + jnp.array([np.radians(2.0), -np.radians(1.5), np.radians(1.0), 0.01, -0.01, 0.01])
+    fit = fine_refine(problem, config, start)
+    err = np.abs(np.asarray(fit.params - truth))
+    assert bool(fit.converged)
+    assert np.degrees(err[:3]).max() < 0.05 and 100 * err[3:].max() < 0.05, err
 
 
 # The tracking preset fits the whole cloud instead of the slabs around the cutting planes.
