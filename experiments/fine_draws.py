@@ -12,19 +12,19 @@ Python literals where they are, else kept as text). Whole calls run one compiled
 `_build_and_estimate` per variant (one capacity bucket for every pair, key `fold_in(key(0), i)`
 as `fine_variants.py` runs them); `--from-truth` runs the fine stage alone from each pair's true
 motion instead (at σ ≤ 1 cm the whole call ends there too: docs, Findings, where the fine stage
-stops under noise). Prints, per level and variant: found (< 1° and < 5 cm), false successes,
-successes, median rotation (°) and centroid (cm) errors, then the same medians per target;
-with `--out NAME` also writes `results/NAME.json` (every row).
+stops under noise). Prints, per level and variant, `fine_variants.report` and
+`report_by_target` against GICP (found < 1° and < 5 cm, successes, false successes, median
+errors, the pairs not found; medians per target); with `--out NAME` also writes
+`results/NAME.json` (every row).
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
-import statistics
 
 from _common import write_json
-from fine_variants import fine_config, gicp_rows, jaxpose_rows, truth_rows
+from fine_variants import fine_config, gicp_rows, jaxpose_rows, report, report_by_target, truth_rows
 
 import jaxpose as jp
 from jaxpose.evaluation import realistic
@@ -57,28 +57,6 @@ def draws(levels, seeds, pairs) -> dict[float, list[tuple[int, realistic.Case]]]
     return out
 
 
-def medians(rows, cases, target=None) -> tuple[float, float]:
-    picked = [r for r, c in zip(rows, cases, strict=True) if target is None or c.target == target]
-    return (
-        statistics.median(r["rotation_error_deg"] for r in picked),
-        statistics.median(r["centroid_error_cm"] for r in picked),
-    )
-
-
-def line(name, rows, cases) -> str:
-    found = sum(r["found"] for r in rows)
-    head = f"{name:36s} found {found:3d}"
-    if "status" in rows[0]:
-        false = sum(r["status"] == 0 and not r["found"] for r in rows)
-        head += f", false {false}, successes {sum(r['status'] == 0 for r in rows)}"
-    rot, cen = medians(rows, cases)
-    parts = [f"{head} | all {rot:.4f} / {cen:.4f}"]
-    for target in dict.fromkeys(c.target for c in cases):
-        rot, cen = medians(rows, cases, target)
-        parts.append(f"{target} {rot:.3f} / {cen:.3f}")
-    return " | ".join(parts)
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--levels", default="0.5")
@@ -96,12 +74,12 @@ def main():
     payload = {"args": vars(args), "levels": {}}
     for sigma, drawn in draws(levels, seeds, args.pairs).items():
         cases = [case for _, case in drawn]
-        print(f"σ {sigma:g} cm, {len(cases)} pairs (seeds {args.seeds}), median rotation ° / centroid cm", flush=True)
+        print(f"σ {sigma:g} cm, {len(cases)} pairs (seeds {args.seeds})", flush=True)
         rows = {"GICP": gicp_rows(cases)}
-        print(line("GICP", rows["GICP"], cases), flush=True)
         for spec in variants:
-            rows[spec], _ = run(cases, configs[spec])
-            print(line(spec, rows[spec], cases), flush=True)
+            rows[spec], compile_s = run(cases, configs[spec])
+            report(spec, cases, rows[spec], rows["GICP"], compile_s, [sigma])
+            report_by_target(cases, rows[spec], rows["GICP"], [sigma])
         labels = [f"seed {seed}: {case.label}" for seed, case in drawn]
         payload["levels"][f"{sigma:g}"] = {"pairs": labels, "rows": rows}
     if args.out:

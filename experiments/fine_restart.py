@@ -25,12 +25,14 @@ and ended from the fit from the truth (median rotation angle between them, °).
 from __future__ import annotations
 
 import argparse
+import functools
 import statistics
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from _common import RESULTS, write_json
+from fine_variants import fine_constants
 
 import jaxpose as jp
 from jaxpose import _fine
@@ -85,22 +87,15 @@ def restart_rows(cases, config) -> list[dict]:
     return rows
 
 
-_FITS_BY_STOP: dict[float, object] = {}
-
-
+@functools.cache
 def noise_stop_fit(stop: float):
     """`fine_refine`, jitted with `_fine.NOISE_STEP` = `stop` (read when it is traced)."""
-    if stop not in _FITS_BY_STOP:
 
-        def fit(problem, config, start):
-            saved, _fine.NOISE_STEP = _fine.NOISE_STEP, stop
-            try:
-                return fine_refine(problem, config, start)
-            finally:
-                _fine.NOISE_STEP = saved
+    def fit(problem, config, start):
+        with fine_constants(NOISE_STEP=stop):
+            return fine_refine(problem, config, start)
 
-        _FITS_BY_STOP[stop] = eqx.filter_jit(fit)
-    return _FITS_BY_STOP[stop]
+    return eqx.filter_jit(fit)
 
 
 def summary(rows) -> dict:

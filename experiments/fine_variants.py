@@ -41,6 +41,7 @@ stage's anchor on the realistic benchmark).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import statistics
 import time
@@ -163,6 +164,20 @@ def report_by_target(cases, rows, gicp, levels):
                 for sel in (ours, peer)
             )
             print(f"    σ {sigma} cm {target}: {line}")
+
+
+@contextlib.contextmanager
+def fine_constants(**values):
+    """`jaxpose._fine`'s module constants set to `values` inside the block (read when a
+    program is traced), restored after it."""
+    saved = {k: getattr(_fine, k) for k in values}
+    for k, v in values.items():
+        setattr(_fine, k, v)
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            setattr(_fine, k, v)
 
 
 def fine_config(config, **settings):
@@ -324,14 +339,8 @@ def main():
     variants = [v for v in variants if args.only in v[0]]
     rows_of = truth_rows if args.from_truth else jaxpose_rows
     for name, config, constants in variants:
-        saved = {k: getattr(_fine, k) for k in constants}
-        for k, v in constants.items():
-            setattr(_fine, k, v)
-        try:
+        with fine_constants(**constants):
             rows, compile_s = rows_of(cases, config)
-        finally:
-            for k, v in saved.items():
-                setattr(_fine, k, v)
         report(name, cases, rows, gicp, compile_s, levels)
         if args.by_target:
             report_by_target(cases, rows, gicp, levels)
