@@ -66,6 +66,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("prefixes", nargs="*", default=list(DEFAULT_PREFIXES))
     parser.add_argument("--out", type=Path, default=None, help="write the rows as JSON here")
+    parser.add_argument("--seed", type=int, default=0, help="the draw (make_cases(seed=...)); 0: the benchmark's")
     parser.add_argument(
         "--plane-source",
         default="selected",
@@ -79,7 +80,7 @@ def main():
     def wanted(label):
         return any(label.startswith(prefix) for prefix in args.prefixes)
 
-    for case in realistic.make_cases(8, keep=wanted):
+    for case in realistic.make_cases(8, seed=args.seed, keep=wanted):
         i = benchmark_position(case)
         prev, curr = case.prev.floating(), case.curr.floating()
         config = sized_config(prev, curr, base)

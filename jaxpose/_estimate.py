@@ -14,7 +14,7 @@ import jaxlie
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._batch import score_batch
-from ._capture import capture_search, principal_start
+from ._capture import capture_search, principal_start, view_maps
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
@@ -28,6 +28,7 @@ from ._rotations import rotation, rotation_angle
 from ._search import GlobalResult, LocalResult, box_scale, local_refine, restarted_search
 from ._tree import tree_select
 from ._uncertainty import motion_covariance, rotation_std
+from ._visibility import RangeMap, in_front
 
 
 class Status(eqx.Enumeration):
@@ -235,15 +236,68 @@ def turn_tie(best: FineResult) -> Float[Array, ""]:
     return jnp.where(without_range_noise(best), FINE_TIE, TURN_TIE)
 
 
-def prefers(a: FineResult, b: FineResult) -> Bool[Array, ""]:
-    """Whether b explains more of the current cloud than a: a larger inlier fraction, or,
-    within `FINE_TIE`, a smaller weighted RMS residual."""
-    return (b.inliers > a.inliers + FINE_TIE) | ((b.inliers >= a.inliers - FINE_TIE) & (b.rms < a.rms))
+FREE_SPACE_MARGIN = 0.02
+"""A point counts against a fit when the fit puts it more than this (metres) in front of the
+nearest surface the other view saw in its direction ([`free_space_conflict`][]): below the
+height of the small parts (fittings, tunnels, booms, 4–15 cm) whose misplacement gives a
+wrong turn away, and twice the smallest benchmark noise that is not zero. Chosen, not tuned
+(docs, Findings: free space decides between fits far apart)."""
+
+CONFLICT_TIE = 0.002
+"""Conflict shares ([`free_space_conflict`][]) closer than this leave two fits far apart
+undecided by the views: the estimate is then `Status.ambiguous` ([`equally_good_and_apart`][])."""
 
 
-def better_fine(a, b):
-    """The fine-stage result that explains more of the current cloud ([`prefers`][])."""
-    return tree_select(prefers(a, b), b, a)
+def free_space_conflict(problem: Problem, p: Float[Array, "6"], views: tuple[RangeMap, RangeMap]) -> Float[Array, ""]:
+    """The share (0–1) of both clouds' points that the displacement p (frame n) puts where the
+    other view saw through them: the previous points (`problem.fine.points`) moved by p that the
+    current view's range map has more than `FREE_SPACE_MARGIN` in front of its nearest surface
+    or in an empty cell, and the current points (`problem.curr`) moved back by p that the
+    previous view's map has so (`jaxpose._visibility.in_front`). `views`: the previous and the
+    current range maps (`jaxpose._capture.view_maps`).
+
+    A right fit leaves only edges and noise there. A wrong one that lays most of a surface onto
+    itself, such as a turn about a near-symmetry axis, or about a faceted cylinder's facet,
+    still puts its small parts (fittings, tunnels, booms) in front of surface the other view
+    saw, or beside the silhouette. The inlier fraction cannot see this: the wrong turn may
+    even explain more of the current cloud, as it lines up more of the two views' visible
+    arcs (docs, Findings: free space decides between turns)."""
+    prev_map, curr_map = views
+    G = rotation(p[0], p[1], p[2])
+    xyz = p[3:]
+    fine = problem.fine
+    moved = G @ fine.points + xyz[:, None]
+    back = G.T @ (problem.curr - xyz[:, None])
+    forward = fine.valid & in_front(curr_map, moved, FREE_SPACE_MARGIN)
+    backward = problem.curr_valid & in_front(prev_map, back, FREE_SPACE_MARGIN)
+    count = jnp.sum(fine.valid) + jnp.sum(problem.curr_valid)
+    return (jnp.sum(forward) + jnp.sum(backward)) / jnp.maximum(count, 1)
+
+
+def judged_apart(a: FineResult, b: FineResult, config: Config) -> Bool[Array, ""]:
+    """Whether two live fits (some inliers) with judged conflicts lie apart ([`apart`][]):
+    then the views, not the inlier fractions, decide between them ([`prefers`][])."""
+    live = (a.inliers > 0) & (b.inliers > 0) & jnp.isfinite(a.conflict) & jnp.isfinite(b.conflict)
+    return live & apart(a, b, config)
+
+
+def prefers(a: FineResult, b: FineResult, config: Config | None = None) -> Bool[Array, ""]:
+    """Whether b explains the two clouds better than a.
+
+    With `config`, two live fits far apart (more than `Thresholds.ambiguous_deg`, with
+    judged conflicts: [`judged_apart`][]) are two different motions, and the one that
+    contradicts the views less wins: the smaller [`free_space_conflict`][]. Otherwise (two
+    fits of nearly the same motion, or without `config`): the larger inlier fraction, or,
+    within `FINE_TIE`, the smaller weighted RMS residual."""
+    by_cloud = (b.inliers > a.inliers + FINE_TIE) | ((b.inliers >= a.inliers - FINE_TIE) & (b.rms < a.rms))
+    if config is None:
+        return by_cloud
+    return jnp.where(judged_apart(a, b, config), b.conflict < a.conflict, by_cloud)
+
+
+def better_fine(a, b, config: Config | None = None):
+    """The fine-stage result that explains the clouds better ([`prefers`][])."""
+    return tree_select(prefers(a, b, config), b, a)
 
 
 def rotation_between(p: Float[Array, "6"], q: Float[Array, "6"]) -> Float[Array, ""]:
@@ -266,10 +320,14 @@ def apart(a: FineResult, b: FineResult, config: Config) -> Bool[Array, ""]:
 def equally_good_and_apart(
     a: FineResult, b: FineResult, config: Config, tie: float | Float[Array, ""] = FINE_TIE
 ) -> Bool[Array, ""]:
-    """Whether two fine-stage results explain the current cloud equally well (inlier fractions
-    within `tie`) while their rotations differ by more than `Thresholds.ambiguous_deg`:
-    the surfaces do not decide between them (see `Status.ambiguous`)."""
-    return (jnp.abs(a.inliers - b.inliers) <= tie) & apart(a, b, config)
+    """Whether two fine-stage results whose rotations differ by more than
+    `Thresholds.ambiguous_deg` explain the clouds equally well: inlier fractions within `tie`,
+    or, where both conflicts are judged, conflict shares within `CONFLICT_TIE`
+    ([`free_space_conflict`][]). The views then do not decide between them (see
+    `Status.ambiguous`)."""
+    close_inliers = jnp.abs(a.inliers - b.inliers) <= tie
+    close_conflicts = judged_apart(a, b, config) & (jnp.abs(a.conflict - b.conflict) <= CONFLICT_TIE)
+    return (close_inliers | close_conflicts) & apart(a, b, config)
 
 
 def symmetry_turns(frame: PlaneFrame, config: Config) -> Float[Array, "2 3"]:
@@ -358,13 +416,13 @@ def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResu
     the estimate is ambiguous. The challenger becomes the best when preferred ([`prefers`][]),
     and the best it displaces becomes the runner-up if the two lie apart. A challenger that
     loses becomes the runner-up when it lies apart from the best and the runner-up does not,
-    or is less preferred. A challenger whose inlier fraction is within [`turn_tie`][] of the
-    best's and that lies apart makes the estimate ambiguous (`equally_good_and_apart`). An
-    inactive run (no inliers) changes nothing."""
+    or is less preferred. A challenger that lies apart and is within [`turn_tie`][] of the
+    best's inlier fraction, or within `CONFLICT_TIE` of its conflict share, makes the estimate
+    ambiguous (`equally_good_and_apart`). An inactive run (no inliers) changes nothing."""
     live = challenger.inliers > 0
     far = apart(best, challenger, config)
-    wins = live & prefers(best, challenger)
-    rival = live & ~wins & far & (~apart(best, other, config) | prefers(other, challenger))
+    wins = live & prefers(best, challenger, config)
+    rival = live & ~wins & far & (~apart(best, other, config) | prefers(other, challenger, config))
     tied = live & equally_good_and_apart(best, challenger, config, turn_tie(best))
     demoted = wins & far
     runner_up = tree_select(demoted, best, tree_select(rival, challenger, other))
@@ -375,11 +433,12 @@ def _take(tree, i: int):
     return jax.tree.map(lambda x: x[i], tree)
 
 
-def best_run(runs: FineResult, count: int) -> FineResult:
-    """The best (`better_fine`) of the first `count` runs of a stacked `FineResult`."""
+def best_run(runs: FineResult, count: int, config: Config | None = None) -> FineResult:
+    """The best (`better_fine`, with `config`) of the first `count` runs of a stacked
+    `FineResult`."""
     best = _take(runs, 0)
     for i in range(1, count):
-        best = better_fine(best, _take(runs, i))
+        best = better_fine(best, _take(runs, i), config)
     return best
 
 
@@ -411,7 +470,10 @@ def fine_passes(
     (`best_run`) turned by `turns[j]` about [`symmetry_centre`][] ([`turned`][]; an inactive run,
     `fine_refine(..., active=False)`, where the turn is zero); then, where the best of all
     shows no range noise, its polish against planes through the previous points (see
-    [`polished`][]; an inactive run otherwise).
+    [`polished`][]; an inactive run otherwise). Each live run's `conflict` is filled in
+    ([`free_space_conflict`][], against the two views' range maps), so that "best" here
+    ([`best_run`][] with the config) and in the contests after it weighs fits far apart by
+    what the views saw.
 
     One `lax.scan` over the passes, so that the program holds one fine stage, not one per
     start: each copy cost about 1.3 s of tracing and compiling on the 2-core CPU. The passes
@@ -423,15 +485,16 @@ def fine_passes(
     fine = problem.fine
     exact = exact_surface(fine)
     centre = symmetry_centre(fine.points, fine.normals, fine.valid, turns[0]) if turns.shape[0] else None
+    views = view_maps(problem)
 
     def one_pass(runs, i):
         polish = i == fits
         turning = (i >= count) & ~polish
-        best = best_run(runs, fits)
+        best = best_run(runs, fits, config)
         start = starts[jnp.minimum(i, count - 1)]
         if turns.shape[0]:
             turn = turns[jnp.clip(i - count, 0, turns.shape[0] - 1)]
-            start = jnp.where(turning, turned(best_run(runs, count).params, turn, centre), start)
+            start = jnp.where(turning, turned(best_run(runs, count, config).params, turn, centre), start)
             active = ~turning | jnp.any(turn != 0)
         else:
             active = True
@@ -447,10 +510,13 @@ def fine_passes(
             two_way=~polish,
             combine=~polish,
         )
+        conflict = jnp.where(run.inliers > 0, free_space_conflict(problem, run.params, views), jnp.nan)
+        run = eqx.tree_at(lambda r: r.conflict, run, conflict.astype(run.conflict.dtype))
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 
     shapes = jax.eval_shape(lambda: fine_refine(problem, config, starts[0]))
     empty = jax.tree.map(lambda s: jnp.zeros((passes, *s.shape), s.dtype), shapes)
+    empty = eqx.tree_at(lambda r: r.conflict, empty, jnp.full(passes, jnp.nan, empty.conflict.dtype))
     runs, _ = jax.lax.scan(one_pass, empty, jnp.arange(passes))
     return runs
 
@@ -506,7 +572,8 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
         if config.fine.from_rest:
             rest = _take(runs, 1)
             ambiguous = equally_good_and_apart(fine, rest, config)
-            fine, other = better_fine(fine, rest), better_fine(rest, fine)
+            rest_wins = prefers(fine, rest, config)
+            fine, other = tree_select(rest_wins, rest, fine), tree_select(rest_wins, fine, rest)
         fits = len(starts) + (0 if turns is None else turns.shape[0])
         # The principal start, then the turned runs, each a challenger to the best so far.
         for i in range(1 + config.fine.from_rest, fits):

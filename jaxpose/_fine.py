@@ -188,6 +188,9 @@ class FineResult(eqx.Module):
       (`FineCloud.planar`): whether a view shows range noise (`EXACT_RMS`), without the
       edges' planes, which miss a noise-free surface by up to millimetres.
     - `used`: number of selected current points.
+    - `conflict`: the share of both clouds' points that the fit puts where the other view saw
+      through (`jaxpose._estimate.free_space_conflict`); NaN where not judged: `fine_refine`
+      leaves it so, `jaxpose._estimate.fine_passes` fills it in for each live run.
     """
 
     params: Float[Array, "6"]
@@ -197,6 +200,7 @@ class FineResult(eqx.Module):
     rms: Float[Array, ""]
     planar_rms: Float[Array, ""]
     used: Int[Array, ""]
+    conflict: Float[Array, ""]
 
 
 def slab_distance(points: Float[Array, "3 N"], planes, d) -> Float[Array, " N"]:
@@ -1023,6 +1027,7 @@ def fine_refine(
         rms=_weighted_rms(r, w),
         planar_rms=_weighted_rms(r, w * matched.planar),
         used=used.astype(jnp.int32),
+        conflict=jnp.full((), jnp.nan, dtype),
     )
 
 

@@ -5,7 +5,9 @@ A time-of-flight camera sees, along each of its rays, the nearest surface. A clo
 about the cloud's mean direction) and keeps the nearest range in each cell. A point more
 than a margin behind that range in its cell was hidden from the view by nearer surface
 ([`hidden`][]): the capture stage's consistency does not expect such a point to have been
-seen (`jaxpose._capture.consistency`).
+seen (`jaxpose._capture.consistency`). A point more than a margin in front of it, or where
+the view saw nothing, contradicts the view ([`in_front`][]): the fine stage's choice between
+fits far apart counts such points (`jaxpose._estimate.free_space_conflict`).
 
 No camera model is needed (no intrinsics, no pixel order): the cells are sized from the
 points' own angular spacing, a few points a cell, so that a dropped pixel leaves no hole.
@@ -110,4 +112,15 @@ def hidden(rmap: RangeMap, points: Float[Array, "3 S"], margin) -> Bool[Array, "
     return inside & (r > rmap.nearest[i, j] + margin)
 
 
-__all__ = ["RangeMap", "hidden", "range_map", "view_basis"]
+def in_front(rmap: RangeMap, points: Float[Array, "3 S"], margin) -> Bool[Array, " S"]:
+    """Which `points` the view of `rmap` would have seen had they been there: inside its
+    bounding box of directions and more than `margin` metres in front of the nearest range it
+    saw in their cell, or in a cell where it saw nothing. Such a point contradicts the view:
+    the view saw through it to farther surface, or to empty space."""
+    u, v, r = _directions(rmap.basis, rmap.camera, points)
+    inside = (u >= rmap.lo[0]) & (u <= rmap.hi[0]) & (v >= rmap.lo[1]) & (v <= rmap.hi[1])
+    i, j = _cells(rmap.lo, rmap.cell, u, v)
+    return inside & (r < rmap.nearest[i, j] - margin)
+
+
+__all__ = ["RangeMap", "hidden", "in_front", "range_map", "view_basis"]

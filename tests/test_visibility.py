@@ -76,3 +76,28 @@ def test_a_near_plate_hides_only_the_part_of_a_far_plate_behind_it():
     clear = outline / 4.0 > 2.0 * float(rmap.cell)  # in tangent-plane units
     assert clear.sum() > 0.8 * far.shape[1] and (clear & behind).sum() > 0.5 * behind.sum()
     np.testing.assert_array_equal(got[clear], behind[clear])
+
+
+@pytest.mark.parametrize("dropout", [0.0, 0.3])
+def test_a_plate_is_seen_through_only_in_front_of_it_and_where_nothing_was_seen(dropout):
+    """`in_front`, the complement of `hidden` within the view: in front of the plate by more
+    than the margin, or in a direction inside the view's box where nothing was seen, a point
+    contradicts the view; on or behind the plate, or outside the view's directions, it does
+    not. A 1 m plate 5 m ahead with a 0.3 m square hole (nothing seen through it)."""
+    rng = np.random.default_rng(2)
+    plate = _plate(5.0, 0.5, 0.01, rng, dropout)
+    hole = (np.abs(plate[0] - 0.25) <= 0.15) & (np.abs(plate[1] - 0.25) <= 0.15)
+    rmap = _map(plate[:, ~hole])
+    probe = np.array(
+        [
+            [-0.2, -0.2, 4.8],  # 20 cm in front of the plate: seen through
+            [-0.2, -0.2, 4.99],  # on the plate, within the margin
+            [-0.2, -0.2, 5.5],  # behind it
+            [0.25, 0.25, 5.0],  # in the hole's middle, at the plate's depth: nothing was seen there
+            [1.5, 0.0, 4.0],  # beside the view
+        ]
+    ).T
+    got = np.asarray(visibility.in_front(rmap, jnp.asarray(probe), 0.02))
+    assert got.tolist() == [True, False, False, True, False]
+    hidden = np.asarray(visibility.hidden(rmap, jnp.asarray(probe), 0.02))
+    assert not np.any(got & hidden)
