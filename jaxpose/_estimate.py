@@ -47,7 +47,8 @@ class Status(eqx.Enumeration):
     )
     ambiguous = (
         "two surface fits (from the pattern search's result, from rest, or turned about a near-symmetry "
-        "axis) explain the current cloud equally well but differ by more than Thresholds.ambiguous_deg: "
+        "axis) explain the current cloud equally well, or contradict what the two views saw equally little, "
+        "but differ by more than Thresholds.ambiguous_deg: "
         "the views do not fix the motion (e.g. a turn about a near-symmetry axis); Estimate.alternative "
         "holds the other fit"
     )
