@@ -287,13 +287,17 @@ def prefers(a: FineResult, b: FineResult, config: Config | None = None) -> Bool[
 
     With `config`, two live fits far apart (more than `Thresholds.ambiguous_deg`, with
     judged conflicts: [`judged_apart`][]) are two different motions, and the one that
-    contradicts the views less wins: the smaller [`free_space_conflict`][]. Otherwise (two
-    fits of nearly the same motion, or without `config`): the larger inlier fraction, or,
-    within `FINE_TIE`, the smaller weighted RMS residual."""
+    contradicts the views less wins: the smaller [`free_space_conflict`][], by more than
+    `CONFLICT_TIE`. Otherwise (conflicts within the tie, which also makes the estimate
+    ambiguous; two fits of nearly the same motion; or without `config`): the larger inlier
+    fraction, or, within `FINE_TIE`, the smaller weighted RMS residual. A face seen head-on
+    is why the tie falls back: fits turned 0.6° and 1.4° in its plane both put nothing where
+    the other view saw through (`tests/test_realistic.py`, one face seen head-on)."""
     by_cloud = (b.inliers > a.inliers + FINE_TIE) | ((b.inliers >= a.inliers - FINE_TIE) & (b.rms < a.rms))
     if config is None:
         return by_cloud
-    return jnp.where(judged_apart(a, b, config), b.conflict < a.conflict, by_cloud)
+    decided = judged_apart(a, b, config) & (jnp.abs(b.conflict - a.conflict) > CONFLICT_TIE)
+    return jnp.where(decided, b.conflict < a.conflict, by_cloud)
 
 
 def better_fine(a, b, config: Config | None = None):

@@ -567,15 +567,17 @@ def test_a_dropped_fine_result_without_a_refine_is_not_converged(paper_clouds):
     [
         ((0.0, 0.0, 15.0), 0.70, 0.030, False, False),  # apart, more inliers, more conflict: a loses nothing
         ((0.0, 0.0, 15.0), 0.60, 0.010, True, False),  # apart, fewer inliers, less conflict: b wins
-        ((0.0, 0.0, 15.0), 0.60, 0.0205, False, True),  # apart, conflicts within CONFLICT_TIE: ambiguous
+        ((0.0, 0.0, 15.0), 0.60, 0.0205, False, True),  # conflicts within CONFLICT_TIE: inliers, ambiguous
+        ((0.0, 0.0, 15.0), 0.70, 0.0205, True, True),  # the same tie, b has more inliers: b wins, ambiguous
         ((0.0, 0.0, 0.3), 0.70, 0.030, True, False),  # the same motion within 1°: the inlier rule
         ((0.0, 0.0, 15.0), 0.70, np.nan, True, False),  # b's conflict not judged: the inlier rule
     ],
 )
 def test_fits_far_apart_are_weighed_by_what_the_views_saw(b_angles, b_inliers, b_conflict, b_wins, tied):
     """`prefers` with a config: between two live fits more than `Thresholds.ambiguous_deg`
-    apart, the smaller free-space conflict wins whatever the inlier fractions; within 1°, or
-    where a conflict is not judged (NaN), the inlier fraction (then the RMS) decides.
+    apart, the smaller free-space conflict wins whatever the inlier fractions; within 1°, where
+    the conflicts lie within `CONFLICT_TIE`, or where a conflict is not judged (NaN), the
+    inlier fraction (then the RMS) decides.
     `equally_good_and_apart` also ties fits apart whose conflicts lie within `CONFLICT_TIE`."""
     from jaxpose._estimate import CONFLICT_TIE, equally_good_and_apart, prefers
 
