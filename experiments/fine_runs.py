@@ -1,8 +1,8 @@
 """Every fit of the default fine stage on chosen pairs of the realistic benchmark.
 
-`uv run python experiments/fine_runs.py [PREFIX ...] [--out FILE.json]`
+`uv run python experiments/fine_runs.py [PREFIX ...] [--seed S] [--out FILE.json]`
 
-For each pair of `jaxpose.evaluation.realistic.make_cases(8)` (the benchmark's pairs, seed 0)
+For each pair of `jaxpose.evaluation.realistic.make_cases(8, seed=S)` (S = 0: the benchmark's pairs)
 whose label starts with one of the prefixes (only those are simulated; default: the upper
 stage at σ 0.5, 1 and 2 cm, and the satellite at σ 2 cm), the default `estimate` with the
 benchmark's key, then the fine stage's passes again from the same starts
