@@ -1,7 +1,7 @@
 """Fine-stage settings on several draws of the realistic benchmark at once, GICP on the same clouds.
 
 `uv run --extra peers python experiments/fine_draws.py [--levels 0.5] [--seeds 0,1,2,3] [--pairs 8]
-[--variants default,residual=plane_to_plane,neighbours=10] [--from-truth] [--out NAME]`
+[--variants default,residual=plane_to_plane,neighbours=10] [--from-truth] [--free-space-margin M] [--out NAME]`
 
 Each seed draws `--pairs` pairs per target at each level (`make_cases(seed=s)`, the pairs that
 draw has at that level: seed 0 holds the committed benchmark's), so four seeds give 224 pairs per
@@ -15,18 +15,21 @@ motion instead (at σ ≤ 1 cm the whole call ends there too: docs, Findings, wh
 stops under noise). Prints, per level and variant, `fine_variants.report` and
 `report_by_target` against GICP (found < 1° and < 5 cm, successes, false successes, median
 errors, the pairs not found; medians per target); with `--out NAME` also writes
-`results/NAME.json` (every row).
+`results/NAME.json` (every row). `--free-space-margin M` sets `_estimate.FREE_SPACE_MARGIN`
+(metres) for the whole process (docs, Findings: free space decides between fits far apart).
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 
 from _common import write_json
-from fine_variants import fine_config, gicp_rows, jaxpose_rows, report, report_by_target, truth_rows
+from fine_variants import fine_config, fine_constants, gicp_rows, jaxpose_rows, report, report_by_target, truth_rows
 
 import jaxpose as jp
+from jaxpose import _estimate
 from jaxpose.evaluation import realistic
 
 
@@ -65,7 +68,14 @@ def main():
     parser.add_argument("--variants", default="default,residual=plane_to_plane")
     parser.add_argument("--from-truth", action="store_true")
     parser.add_argument("--out", default="")
+    parser.add_argument("--free-space-margin", type=float, default=None)
     args = parser.parse_args()
+    margin = args.free_space_margin
+    with fine_constants(_estimate, FREE_SPACE_MARGIN=margin) if margin is not None else contextlib.nullcontext():
+        run_draws(args)
+
+
+def run_draws(args):
     levels = tuple(float(x) for x in args.levels.split(","))
     seeds = tuple(int(x) for x in args.seeds.split(","))
     variants = args.variants.split(",")

@@ -167,17 +167,18 @@ def report_by_target(cases, rows, gicp, levels):
 
 
 @contextlib.contextmanager
-def fine_constants(**values):
-    """`jaxpose._fine`'s module constants set to `values` inside the block (read when a
-    program is traced), restored after it."""
-    saved = {k: getattr(_fine, k) for k in values}
+def fine_constants(module=_fine, **values):
+    """`module`'s constants (default `jaxpose._fine`) set to `values` inside the block (read
+    when a program is traced), restored after it. A program compiled before the block is not
+    traced again: set them before the first call of a process."""
+    saved = {k: getattr(module, k) for k in values}
     for k, v in values.items():
-        setattr(_fine, k, v)
+        setattr(module, k, v)
     try:
         yield
     finally:
         for k, v in saved.items():
-            setattr(_fine, k, v)
+            setattr(module, k, v)
 
 
 def fine_config(config, **settings):
