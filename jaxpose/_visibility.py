@@ -103,13 +103,21 @@ def range_map(
     return RangeMap(camera, basis, lo, hi, cell, nearest)
 
 
-def hidden(rmap: RangeMap, points: Float[Array, "3 S"], margin) -> Bool[Array, " S"]:
-    """Which `points` the view of `rmap` could not have seen: inside its bounding box of
-    directions and more than `margin` metres behind the nearest range it saw in their cell."""
+def _seen_along(rmap: RangeMap, points: Float[Array, "3 S"]):
+    """For each point: whether its direction lies inside the view's bounding box, its range
+    from the camera, and the nearest range the view saw in its cell (+inf where it saw
+    nothing), metres."""
     u, v, r = _directions(rmap.basis, rmap.camera, points)
     inside = (u >= rmap.lo[0]) & (u <= rmap.hi[0]) & (v >= rmap.lo[1]) & (v <= rmap.hi[1])
     i, j = _cells(rmap.lo, rmap.cell, u, v)
-    return inside & (r > rmap.nearest[i, j] + margin)
+    return inside, r, rmap.nearest[i, j]
+
+
+def hidden(rmap: RangeMap, points: Float[Array, "3 S"], margin) -> Bool[Array, " S"]:
+    """Which `points` the view of `rmap` could not have seen: inside its bounding box of
+    directions and more than `margin` metres behind the nearest range it saw in their cell."""
+    inside, r, nearest = _seen_along(rmap, points)
+    return inside & (r > nearest + margin)
 
 
 def in_front(rmap: RangeMap, points: Float[Array, "3 S"], margin) -> Bool[Array, " S"]:
@@ -117,10 +125,8 @@ def in_front(rmap: RangeMap, points: Float[Array, "3 S"], margin) -> Bool[Array,
     bounding box of directions and more than `margin` metres in front of the nearest range it
     saw in their cell, or in a cell where it saw nothing. Such a point contradicts the view:
     the view saw through it to farther surface, or to empty space."""
-    u, v, r = _directions(rmap.basis, rmap.camera, points)
-    inside = (u >= rmap.lo[0]) & (u <= rmap.hi[0]) & (v >= rmap.lo[1]) & (v <= rmap.hi[1])
-    i, j = _cells(rmap.lo, rmap.cell, u, v)
-    return inside & (r < rmap.nearest[i, j] - margin)
+    inside, r, nearest = _seen_along(rmap, points)
+    return inside & (r < nearest - margin)
 
 
 __all__ = ["RangeMap", "hidden", "in_front", "range_map", "view_basis"]
