@@ -102,6 +102,7 @@ def main():
             "fits_centroid_error_cm": [round(f["centroid_error_cm"], 4) for f in fits],
             "fits_inliers": np.round(np.asarray(runs.inliers), 4).tolist(),
             "fits_rms_mm": np.round(np.asarray(runs.rms) * 1000, 2).tolist(),
+            "fits_conflict": np.round(np.asarray(runs.conflict), 5).tolist(),
             "fits_converged": np.asarray(runs.converged).tolist(),
         }
         rows.append(row)

@@ -32,7 +32,7 @@ from _common import RESULTS, write_json
 
 import jaxpose as jp
 from jaxpose.sim import Tumble, simulate_sequence
-from jaxpose.tracking._track import COVARIANCE_SCALE, Chain, chain_estimates, filter_chain, filter_keyframes
+from jaxpose.tracking._track import TRACKING_COVARIANCE_SCALE, Chain, chain_estimates, filter_chain, filter_keyframes
 
 # name → (filter, options: rad, m, rad/s/√s, rad/s²/√s, m/s/√s). The keyframe filter's
 # defaults (the `track` default) are shared_fraction 0.5 and accel_noise 1e-2.
@@ -52,11 +52,11 @@ FILTERS = {
 
 
 def load_chain(path) -> Chain:
-    """A saved `Chain`, its covariances rescaled to today's `COVARIANCE_SCALE` (they are saved
+    """A saved `Chain`, its covariances rescaled to today's `TRACKING_COVARIANCE_SCALE` (they are saved
     scaled by the one of their run, which files written before it was saved lack: 2.36)."""
     arrays = dict(np.load(path))
     saved_scale = float(arrays.pop("covariance_scale", 2.36))
-    arrays["relative_cov"] = arrays["relative_cov"] * (COVARIANCE_SCALE / saved_scale)
+    arrays["relative_cov"] = arrays["relative_cov"] * (TRACKING_COVARIANCE_SCALE / saved_scale)
     return Chain(**{k: jax.numpy.asarray(v) for k, v in arrays.items()})
 
 
@@ -127,7 +127,7 @@ def main(
         )
         seconds = time.perf_counter() - t0
         arrays = {k: np.asarray(v) for k, v in vars(chain).items()}
-        np.savez(saved, **arrays, covariance_scale=COVARIANCE_SCALE)
+        np.savez(saved, **arrays, covariance_scale=TRACKING_COVARIANCE_SCALE)
     R = np.asarray(seq.rotations)
     true_rate = true_rates(R, rate_hz)
     truth_A = np.einsum("kij,lj->kil", R, R[0])  # R_0k = G_k G_0ᵀ

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import jaxlie
 from jaxtyping import Array, ArrayLike, Float
 
-from ._config import Config
+from ._config import COVARIANCE_SCALE, TRACKING_COVARIANCE_SCALE, Config
 from ._fine import SurfaceProblem, fine_covariance
 from ._objective import soft_score
 from ._poses import PARAMETER_SCALE, motion_from_displacement
@@ -40,22 +40,12 @@ def covariance(p: Float[Array, "6"], problem: Problem, scale2: float) -> Float[A
     return (sigma + sigma.T) / 2
 
 
-# Σ = COVARIANCE_SCALE · σ̂² (JᵀJ)⁻¹: the least-squares covariance is 1.52× too small on N5
-# pairs with 1 cm range noise (experiments/nees.py; with the scale the NEES is consistent).
-# Calibrated with `FineStage.anchor` "centroid"; with the planes through the points
-# (`Config.fast()`, `wide()`) the factor is 2.36. On the realistic generator's pairs (every
-# target, σ 0.5–2 cm) with the default "hybrid" anchor it is still too tight: there
-# `experiments/nees_realistic.py --calibrate` gives 3.4. That scale is not taken: with it the
-# tracking benchmark's noise-free fragment, seen at a grazing angle, has most of its
-# registrations `uncertain`, and the tracker loses that tumble (docs, Estimating).
-COVARIANCE_SCALE = 1.52
-
-
 def motion_covariance(problem: SurfaceProblem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
     """Covariance of the camera-frame motion (R, t) that a fine-stage result p (frame n)
     measures: J Σ_p Jᵀ, with Σ_p the fine stage's least-squares covariance scaled by
-    `COVARIANCE_SCALE` and J the Jacobian of p ↦ (log(R(p) R(p̂)ᵀ), t(p)) at p̂. The rotation as a
-    left rotation vector in radians (frame c), then the translation in metres."""
+    `FineStage.covariance_scale` (default `COVARIANCE_SCALE`) and J the Jacobian of
+    p ↦ (log(R(p) R(p̂)ᵀ), t(p)) at p̂. The rotation as a left rotation vector in radians
+    (frame c), then the translation in metres."""
     R_hat, _ = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
 
     def motion(q):
@@ -63,7 +53,7 @@ def motion_covariance(problem: SurfaceProblem, config: Config, p: Float[Array, "
         return jnp.concatenate([jaxlie.SO3.from_matrix(R @ R_hat.T).log(), t])
 
     J = jax.jacfwd(motion)(p)
-    cov = COVARIANCE_SCALE * fine_covariance(problem, config, p)
+    cov = config.fine.covariance_scale * fine_covariance(problem, config, p)
     out = J @ cov @ J.T
     return (out + out.T) / 2
 
@@ -83,4 +73,12 @@ def nees(error: Float[ArrayLike, "6"], sigma: Float[ArrayLike, "6 6"]) -> Float[
     return error @ jnp.linalg.solve(sigma, error)
 
 
-__all__ = ["COVARIANCE_SCALE", "covariance", "curvature", "motion_covariance", "nees", "rotation_std"]
+__all__ = [
+    "COVARIANCE_SCALE",
+    "TRACKING_COVARIANCE_SCALE",
+    "covariance",
+    "curvature",
+    "motion_covariance",
+    "nees",
+    "rotation_std",
+]

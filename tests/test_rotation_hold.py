@@ -165,12 +165,16 @@ def test_the_grip_threshold_is_checked(value):
 
 def test_the_tracker_registers_without_the_hold_checks():
     """`chain_estimates` judges an unheld turn or translation by motion continuity: its
-    registrations' config has both checks off and is otherwise the caller's."""
-    from jaxpose.tracking._track import registration_config
+    registrations' config has both checks off, the covariance scale its filter was tuned with,
+    and is otherwise the caller's."""
+    import dataclasses
+
+    from jaxpose.tracking._track import TRACKING_COVARIANCE_SCALE, registration_config
 
     config = jp.Config(thresholds=jp.Thresholds(min_score=0.6))
     inner = registration_config(config)
     assert inner.thresholds.min_rotation_lever == 0.0
     assert inner.thresholds.min_translation_grip == 0.0
     assert inner.thresholds.min_score == 0.6
-    assert inner.fine == config.fine
+    assert inner.fine.covariance_scale == TRACKING_COVARIANCE_SCALE != config.fine.covariance_scale
+    assert inner.fine == dataclasses.replace(config.fine, covariance_scale=TRACKING_COVARIANCE_SCALE)

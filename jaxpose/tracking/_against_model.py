@@ -50,7 +50,7 @@ from .._poses import displacement_from_motion, motion_from_displacement
 from .._problem import _current_points, sized_sequence_config
 from .._uncertainty import motion_covariance
 from ._model import into_model_frame, voxel_means
-from ._track import Chain, Track, filter_keyframes, measurement_usable, predicted_motion
+from ._track import Chain, Track, filter_keyframes, measurement_usable, predicted_motion, tracking_scale
 
 MODEL_POINTS = 16384
 """Previous points of the model's fine side (`FineStage.prev_points` for the model): the model
@@ -108,10 +108,11 @@ class FrameRegistration(eqx.Module):
 
 
 def model_config(config: Config, model_points: int = MODEL_POINTS) -> Config:
-    """`config` with the fine stage's previous side set to `model_points` points (static)."""
+    """`config` with the fine stage's previous side set to `model_points` points (static), and
+    the covariance scale of the tracker's registrations (`tracking_scale`)."""
     if config.fine is None:
         raise ValueError("registration against the model needs the fine stage (Config.fine is None).")
-    return dataclasses.replace(config, fine=dataclasses.replace(config.fine, prev_points=model_points))
+    return tracking_scale(dataclasses.replace(config, fine=dataclasses.replace(config.fine, prev_points=model_points)))
 
 
 @eqx.filter_jit

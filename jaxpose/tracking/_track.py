@@ -58,7 +58,7 @@ from .._programs import BoundedJit
 from .._rotations import rotation_angle
 from .._search import box_scale
 from .._tree import tree_finite, tree_select
-from .._uncertainty import COVARIANCE_SCALE, motion_covariance, rotation_std
+from .._uncertainty import TRACKING_COVARIANCE_SCALE, motion_covariance, rotation_std
 
 FILTER_UPDATED, FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE = 0, 1, 2, 3
 FILTER_STATUS_NAME = {
@@ -300,7 +300,7 @@ class Chain(eqx.Module):
     The measurement itself, keyframe → k, is kept too: `relative_rotations` and
     `relative_translations` (camera frame c), their covariance `relative_cov` (6, 6; the
     rotation as a left rotation vector in rad, then the translation in m; from the fine
-    stage's least squares scaled by [`COVARIANCE_SCALE`][], identity·1e-4 where the fine
+    stage's least squares scaled by `TRACKING_COVARIANCE_SCALE`, identity·1e-4 where the fine
     stage is off) and `switched` (frame k became the keyframe after its estimate).
 
     `continuity` (None: none): motion continuity made frame k's estimate a registration
@@ -669,10 +669,21 @@ def registration_config(config: Config) -> Config:
     registered and the track was lost (rate error 13.8 °/s at 10 s), without it 198
     (0.24 °/s), the other 19 tumbles the same either way (docs, Tracking). Those
     registrations still go to the filter with their least-squares covariance, which does not
-    widen along the free turn."""
-    return eqx.tree_at(
+    widen along the free turn. That covariance is scaled by `TRACKING_COVARIANCE_SCALE`
+    (`FineStage.covariance_scale`), the scale the filter and its gates were tuned with, rather than
+    the estimate's default realistic calibration."""
+    config = eqx.tree_at(
         lambda c: (c.thresholds.min_rotation_lever, c.thresholds.min_translation_grip), config, (0.0, 0.0)
     )
+    return tracking_scale(config)
+
+
+def tracking_scale(config: Config) -> Config:
+    """`config` with `FineStage.covariance_scale` = `TRACKING_COVARIANCE_SCALE` (unchanged
+    without a fine stage): the measurement covariance the tracker's filter was tuned with."""
+    if config.fine is None:
+        return config
+    return eqx.tree_at(lambda c: c.fine.covariance_scale, config, TRACKING_COVARIANCE_SCALE)
 
 
 def chain_estimates(
@@ -961,7 +972,7 @@ _track_program = BoundedJit(_track)
 
 
 __all__ = [
-    "COVARIANCE_SCALE",
+    "TRACKING_COVARIANCE_SCALE",
     "FILTER_STATUS_NAME",
     "Chain",
     "KeyframeFilter",
