@@ -147,8 +147,9 @@ class Estimate(eqx.Module):
       `FineStage.from_rest` or a fine stage).
     - `covariance`: `(6, 6)` predicted covariance of the motion in the camera frame: the
       rotation as a left rotation vector R R̂ᵀ in radians, then the translation in metres
-      (`jaxpose._uncertainty.motion_covariance`: the fine stage's least squares, scaled as
-      calibrated on noisy pairs), or None without a fine stage. Its largest rotation standard
+      (`jaxpose._uncertainty.motion_covariance`: the fine stage's least squares, scaled by
+      `FineStage.covariance_scale`, calibrated on varied noisy pairs), or None without a fine
+      stage. Its largest rotation standard
       deviation, combined with half the `spread`, above `Thresholds.max_rotation_std_deg` makes
       the result `Status.uncertain`.
     - `spread`: the largest rotation angle (radians) between the estimate and another fit of
