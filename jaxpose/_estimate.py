@@ -149,9 +149,8 @@ class Estimate(eqx.Module):
       rotation as a left rotation vector R R̂ᵀ in radians, then the translation in metres
       (`jaxpose._uncertainty.motion_covariance`: the fine stage's least squares, scaled by
       `FineStage.covariance_scale`, calibrated on varied noisy pairs), or None without a fine
-      stage. Its largest rotation standard
-      deviation, combined with half the `spread`, above `Thresholds.max_rotation_std_deg` makes
-      the result `Status.uncertain`.
+      stage. Its largest rotation standard deviation, combined with half the `spread`, above
+      `Thresholds.max_rotation_std_deg` makes the result `Status.uncertain`.
     - `spread`: the largest rotation angle (radians) between the estimate and another fit of
       the fine stage, from another start, that explains the current cloud as well (inlier
       fractions within `FINE_TIE`; `jaxpose._estimate.fit_spread`): two minima of the fine

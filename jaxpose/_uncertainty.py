@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import jaxlie
 from jaxtyping import Array, ArrayLike, Float
 
-from ._config import COVARIANCE_SCALE, TRACKING_COVARIANCE_SCALE, Config
+from ._config import COVARIANCE_SCALE, Config
 from ._fine import SurfaceProblem, fine_covariance
 from ._objective import soft_score
 from ._poses import PARAMETER_SCALE, motion_from_displacement
@@ -75,7 +75,6 @@ def nees(error: Float[ArrayLike, "6"], sigma: Float[ArrayLike, "6 6"]) -> Float[
 
 __all__ = [
     "COVARIANCE_SCALE",
-    "TRACKING_COVARIANCE_SCALE",
     "covariance",
     "curvature",
     "motion_covariance",

@@ -37,9 +37,9 @@ def test_the_motion_covariance_is_the_least_squares_one_times_the_configured_sca
     (`registration_config`) and the model's (`model_config`) take `TRACKING_COVARIANCE_SCALE`."""
     import dataclasses
 
-    from jaxpose._uncertainty import COVARIANCE_SCALE, TRACKING_COVARIANCE_SCALE, motion_covariance
+    from jaxpose._uncertainty import COVARIANCE_SCALE, motion_covariance
     from jaxpose.tracking._against_model import model_config
-    from jaxpose.tracking._track import registration_config
+    from jaxpose.tracking._track import TRACKING_COVARIANCE_SCALE, registration_config
 
     config = jp.Config()
     assert config.fine.covariance_scale == COVARIANCE_SCALE

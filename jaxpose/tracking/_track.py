@@ -49,7 +49,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from .._checks import is_concrete
 from .._cloud import Cloud
-from .._config import Config
+from .._config import TRACKING_COVARIANCE_SCALE, Config
 from .._estimate import AMBIGUOUS, LOW_SCORE, NOT_CONVERGED, SUCCESS, UNCERTAIN, Hypotheses, estimate_problem
 from .._frame import plane_frame
 from .._poses import displacement_from_motion
@@ -58,7 +58,7 @@ from .._programs import BoundedJit
 from .._rotations import rotation_angle
 from .._search import box_scale
 from .._tree import tree_finite, tree_select
-from .._uncertainty import TRACKING_COVARIANCE_SCALE, motion_covariance, rotation_std
+from .._uncertainty import motion_covariance, rotation_std
 
 FILTER_UPDATED, FILTER_NO_ESTIMATE, FILTER_BAD_MEASUREMENT, FILTER_BAD_UPDATE = 0, 1, 2, 3
 FILTER_STATUS_NAME = {
