@@ -7,8 +7,9 @@ Each seed draws `--pairs` pairs per target at each level (`make_cases(seed=s)`, 
 draw has at that level: seed 0 holds the committed benchmark's), so four seeds give 224 pairs per
 level instead of the benchmark's 56, enough to tell settings apart whose medians differ by
 10–20 % (on 56 pairs the medians move by that much with the draw alone). A variant is "default"
-or `FineStage` fields joined by "+", e.g. `neighbours=10+anchor=point` (values parsed as
-Python literals where they are, else kept as text). Whole calls run one compiled
+or `FineStage` fields joined by "+", e.g. `neighbours=10+anchor=point`, another section's
+field as "section.field", e.g. `patterns.cell_steps=0` (values parsed as Python literals
+where they are, else kept as text). Whole calls run one compiled
 `_build_and_estimate` per variant (one capacity bucket for every pair, key `fold_in(key(0), i)`
 as `fine_variants.py` runs them); `--from-truth` runs the fine stage alone from each pair's true
 motion instead (at σ ≤ 1 cm the whole call ends there too: docs, Findings, where the fine stage
@@ -24,6 +25,7 @@ from __future__ import annotations
 import argparse
 import ast
 import contextlib
+import dataclasses
 
 from _common import write_json
 from fine_variants import fine_config, fine_constants, gicp_rows, jaxpose_rows, report, report_by_target, truth_rows
@@ -34,17 +36,25 @@ from jaxpose.evaluation import realistic
 
 
 def variant_config(spec: str) -> jp.Config:
-    """The default config with the `FineStage` fields of `spec` ("default" or "a=1+b=x")."""
+    """The default config with the fields of `spec` ("default" or "a=1+b=x"): `FineStage`
+    fields by name, another section's as "section.field" (e.g. `patterns.cell_steps=0`)."""
+    config = jp.Config()
     if spec == "default":
-        return jp.Config()
+        return config
     settings = {}
     for part in spec.split("+"):
-        name, value = part.split("=", 1)
+        name, text = part.split("=", 1)
         try:
-            settings[name] = ast.literal_eval(value)
+            value = ast.literal_eval(text)
         except (ValueError, SyntaxError):
+            value = text
+        if "." in name:
+            section, field = name.split(".", 1)
+            changed = dataclasses.replace(getattr(config, section), **{field: value})
+            config = dataclasses.replace(config, **{section: changed})
+        else:
             settings[name] = value
-    return fine_config(jp.Config(), **settings)
+    return fine_config(config, **settings)
 
 
 def draws(levels, seeds, pairs) -> dict[float, list[tuple[int, realistic.Case]]]:

@@ -31,7 +31,7 @@ from ._cloud import Cloud
 from ._config import Config
 from ._fine import CurrentSide, FineCloud, back_side, current_side, fine_cloud
 from ._frame import FRAME_STATUS_TEXT, MIN_POINTS, PlaneFrame, plane_frame
-from ._neighbours import spread_subset
+from ._neighbours import spread_subset, voxel_spacing
 from ._programs import BoundedJit
 
 # Bits of Problem.status.
@@ -248,13 +248,39 @@ def _filled(config: Config, points: int, grid: int, selected: int) -> Config:
     return config.with_capacities(**fill)
 
 
+CELL_STEP_SAMPLES = 64
+"""Points whose nearest-neighbour distances give the sampling step of [`cell_size`][]. The
+sizing at the Python boundary measures it over the whole frame (every pixel a row: 41 616 for
+the CamCube), where 256 samples cost 14 ms a call on the 2-core CPU and 64 cost a quarter;
+the median of 64 distances fixes a scale to a few per cent."""
+
+
+def cell_size(points: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Config) -> Float[Array, ""]:
+    """The cell size and selection half-width d (metres) of the patterns of a previous cloud
+    (points in any frame, `valid` its mask): `Patterns.d`, or `Patterns.cell_steps` times the
+    cloud's sampling step (median nearest-neighbour distance) where that is larger. Jittable;
+    the build and the sizing at the Python boundary both take d from here."""
+    floor = jnp.asarray(config.patterns.d, points.dtype)
+    steps = jnp.asarray(config.patterns.cell_steps, points.dtype)
+    step = jax.lax.cond(
+        steps > 0, lambda: voxel_spacing(points.T, valid, CELL_STEP_SAMPLES), lambda: jnp.zeros((), points.dtype)
+    )
+    return jnp.maximum(floor, steps * step)
+
+
+def with_cell(config: Config, d) -> Config:
+    """`config` with its patterns' cell fixed at `d` (metres): `Patterns.d` = d and
+    `cell_steps` = 0, so that nothing downstream sizes the cell again."""
+    return dataclasses.replace(config, patterns=dataclasses.replace(config.patterns, d=d, cell_steps=0.0))
+
+
 def _sizes_of_patterns(prev: Cloud, config: Config):
     """The previous cloud's valid count, its largest pattern grid (cells per axis, before the
-    cap), the most points any pattern selects, at `config.patterns.d`, and its plane frame's
-    status, for [`sized_config`][] (compiled as `_pattern_sizes`)."""
+    cap), the most points any pattern selects, at the cell of [`cell_size`][], and its plane
+    frame's status, for [`sized_config`][] (compiled as `_pattern_sizes`)."""
     frame = plane_frame(prev)
     A = jnp.where(prev.valid[:, None], frame.to_frame(prev.masked_points), 0.0)
-    d = jnp.asarray(config.patterns.d, A.dtype)
+    d = cell_size(A, prev.valid, config)
     grids = [
         _plane_grid(A, prev.valid, j, offset, d, config.patterns.extension) for j, offset in config.patterns.planes()
     ]
@@ -393,6 +419,7 @@ def _build(prev: Cloud, curr: Cloud, config: Config) -> Problem:
     live = prev.valid
     frame = plane_frame(prev)
     A = jnp.where(live[:, None], frame.to_frame(prev.points), 0.0)
+    config = with_cell(config, cell_size(A, live, config))
     status = jnp.where(frame.ok, 0, PROBLEM_FRAME) | jnp.where(
         n_prev > config.capacities.max_prev_points, PROBLEM_PREV_OVERFLOW, 0
     )

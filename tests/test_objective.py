@@ -51,7 +51,8 @@ def test_hard_score_equals_independent_reference(camera, seed):
     problem = jp.Problem.build(prev, curr)
     truth_like = np.asarray(jp.true_displacement(problem.frame, jnp.eye(3), jnp.zeros(3), jnp.eye(3), jnp.zeros(3)))
     for p in [truth_like, random_p(rng), random_p(rng, 0.2), random_p(rng, 0.05)]:
-        want = reference_objective(prev.compact(), curr.compact(), p)
+        # The default cell follows the data (`Patterns.cell_steps`): the reference takes the same d.
+        want = reference_objective(prev.compact(), curr.compact(), p, d=float(problem.d))
         assert float(hard(jnp.asarray(p), problem)) == pytest.approx(want, abs=1e-6)
 
 
@@ -61,7 +62,7 @@ def test_hard_score_with_slices_equals_reference(camera):
     assert problem.num_planes == 9
     rng = np.random.default_rng(7)
     for p in [np.zeros(6), random_p(rng, 0.2)]:
-        want = reference_objective(prev.compact(), curr.compact(), p, slices=3)
+        want = reference_objective(prev.compact(), curr.compact(), p, d=float(problem.d), slices=3)
         assert float(jax.jit(jp.hard_score)(jnp.asarray(p), problem)) == pytest.approx(want, abs=1e-6)
 
 
