@@ -43,9 +43,9 @@ class Patterns(eqx.Module):
     """How a cloud becomes cell patterns (DECISIONS.md "Patterns and grid"), and the soft
     objective's kernels.
 
-    - `d`: selection half-width and cell size, metres (paper: 0.026): the smallest cell. The
-      cell a pair uses is the larger of `d` and `cell_steps` sampling steps of its previous
-      cloud (see `cell_steps`); `Problem.d` holds it.
+    - `d`: selection half-width and cell size, metres (paper: 0.026); with `cell_steps` > 0 the
+      smallest cell, the one a pair uses being the larger of `d` and `cell_steps` sampling
+      steps of its previous cloud. `Problem.d` holds the cell used.
     - `extension`: grid extension on each side as a fraction of the previous pattern's
       extent in cells (paper: 0.2).
     - `slices`: K parallel slices per axis, offsets (k − (K−1)/2)·2d, k = 0…K−1 (static;
@@ -54,14 +54,17 @@ class Patterns(eqx.Module):
     - `select_width`: width of the soft selection edge, as a fraction of d (→ 0: hard slab).
     - `cell_steps`: the cell is at least this many sampling steps of the previous cloud (its
       median nearest-neighbour distance, `jaxpose._neighbours.voxel_spacing`), computed from
-      the data inside the build, so also under `jax.jit`. Why: a ToF camera's points thin out
-      with range (0.36 % of the range apart for the CamCube's 204 pixels over 40°: 2.3 cm at
-      6.5 m, 5.4 cm at 15 m), and cells smaller than the spacing break a face's pattern into
-      isolated cells that match anything; a 7.6 m satellite at 8–11 m then scored below
-      `Thresholds.min_score` at the true motion. 1.5 keeps d = 0.026 m wherever the points
-      lie 1.73 cm apart or closer (the paper's frames, most of the realistic benchmark's);
-      0 keeps `d` whatever the data (`Config.paper()`). See docs, Realistic: targets of
-      other sizes.
+      the data inside the build, so also under `jax.jit`; 0 (the default) keeps `d` whatever
+      the data. Why it exists: a ToF camera's points thin out with range (0.36 % of the range
+      apart for the CamCube's 204 pixels over 40°: 2.3 cm at 6.5 m, 5.4 cm at 15 m), and cells
+      smaller than the spacing break a face's pattern into isolated cells; targets 6–11 m
+      across seen from 8–17 m then scored below `Thresholds.min_score` at the true motion and
+      were refused (10 of 32 such pairs found but refused; none at 1.5). Why it is off by
+      default: within the realistic benchmark's envelope (targets up to 4 m, 2–6.5 m away) 1.5
+      steps found no more pairs and added false successes at σ 2 cm (2 of 56 on the committed
+      draw, where the fixed cell has none: two satellite views 1.4° and 6.6° off that the
+      low-score check refused with 2.6 cm cells passed it). For large, far targets set 1.5
+      (docs, Findings: a cell that follows the sampling step).
     """
 
     d: Scalar = 0.026
@@ -69,7 +72,7 @@ class Patterns(eqx.Module):
     slices: int = eqx.field(static=True, default=1)
     bin_width: Scalar = 1.0
     select_width: Scalar = 0.5
-    cell_steps: Scalar = 1.5
+    cell_steps: Scalar = 0.0
 
     def __check_init__(self):
         _check_range("Patterns", "d", self.d, 0.0, math.inf)
