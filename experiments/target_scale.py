@@ -49,20 +49,13 @@ from jaxpose.sim import targets
 
 TARGETS = ("n5", "satellite", "upper_stage", "fragment")
 CELL_STEPS = {"steps_1.25": 1.25, "steps_1.5": 1.5, "fixed_cell": 0.0}
-"""The variants: `Patterns.cell_steps` of each (the default's is named in the summary)."""
+"""The variants: `Patterns.cell_steps` of each."""
 VARIANTS = {name: jp.Config(patterns=jp.Patterns(cell_steps=jnp.asarray(steps))) for name, steps in CELL_STEPS.items()}
-
-
-def scaled(target, s: float):
-    """The target with every length multiplied by s."""
-    if isinstance(target, targets.Boxes):
-        return targets.Boxes(target.centers * s, target.half_sizes * s, target.rotations)
-    return targets.Mesh(target.triangles * s)
 
 
 def draw(name: str, s: float, sigma: float, i: int) -> Case:
     """One pair of `name` scaled by s at range noise σ (cm), from its own seed."""
-    target = scaled(getattr(targets, name)(), s)
+    target = targets.scaled(getattr(targets, name)(), s)
     near = realistic.nearest_distance(target)
     far = max(6.5, 1.4 * near)
     rng = np.random.default_rng([11, TARGETS.index(name), round(100 * s), round(10 * sigma), i])

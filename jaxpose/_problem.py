@@ -261,6 +261,8 @@ def cell_size(points: Float[Array, "N 3"], valid: Bool[Array, " N"], config: Con
     cloud's sampling step (median nearest-neighbour distance) where that is larger. Jittable;
     the build and the sizing at the Python boundary both take d from here."""
     floor = jnp.asarray(config.patterns.d, points.dtype)
+    if isinstance(config.patterns.cell_steps, int | float) and config.patterns.cell_steps == 0:
+        return floor  # the default: no step search compiled into the sizing and the build
     steps = jnp.asarray(config.patterns.cell_steps, points.dtype)
     step = jax.lax.cond(
         steps > 0, lambda: voxel_spacing(points.T, valid, CELL_STEP_SAMPLES), lambda: jnp.zeros((), points.dtype)

@@ -20,8 +20,7 @@ from jaxpose.evaluation import realistic
 def far_n5_pair(scale: float = 3.0, z: float = 12.0, turn_deg: float = 5.0):
     """N5 scaled by `scale` (6 m across at 3), `z` metres away, turned `turn_deg` about a
     random axis, noise-free; the CamCube's gate opened to 30 m. Returns prev, curr, R, t."""
-    n5 = targets.n5()
-    target = targets.Boxes(n5.centers * scale, n5.half_sizes * scale, n5.rotations)
+    target = targets.scaled(targets.n5(), scale)
     camera = jp.Camera.camcube2(range_max=30.0)
     R0 = np.asarray(jp.rotation(0.4, -0.3, 0.6))
     dR = realistic._axis_angle(np.array([0.3, 1.0, -0.4]), math.radians(turn_deg))

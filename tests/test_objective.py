@@ -51,7 +51,7 @@ def test_hard_score_equals_independent_reference(camera, seed):
     problem = jp.Problem.build(prev, curr)
     truth_like = np.asarray(jp.true_displacement(problem.frame, jnp.eye(3), jnp.zeros(3), jnp.eye(3), jnp.zeros(3)))
     for p in [truth_like, random_p(rng), random_p(rng, 0.2), random_p(rng, 0.05)]:
-        # The default cell follows the data (`Patterns.cell_steps`): the reference takes the same d.
+        # The reference takes the problem's own cell (`Problem.d`, which `Patterns.cell_steps` may widen).
         want = reference_objective(prev.compact(), curr.compact(), p, d=float(problem.d))
         assert float(hard(jnp.asarray(p), problem)) == pytest.approx(want, abs=1e-6)
 

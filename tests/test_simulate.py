@@ -163,3 +163,19 @@ def test_cloud_from_points_contract():
     for bad in (np.ones((5, 2)), np.array([[np.nan, 0, 0]]), np.array([["a", "b", "c"]])):
         with pytest.raises(ValueError):
             jp.Cloud.from_points(bad)
+
+
+@pytest.mark.parametrize("name", ["n5", "fragment"])
+def test_a_scaled_target_is_the_same_shape_times_the_factor(name):
+    """`targets.scaled` multiplies every triangle vertex by the factor (boxes and meshes), and
+    refuses a factor that is not positive."""
+    target = getattr(jp.targets, name)()
+    big = jp.targets.scaled(target, 3.0)
+    assert type(big) is type(target)
+
+    def triangles(t):
+        return np.asarray(t.triangles() if isinstance(t, jp.targets.Boxes) else t.triangles)
+
+    np.testing.assert_allclose(triangles(big), 3.0 * triangles(target), rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="factor"):
+        jp.targets.scaled(target, 0.0)

@@ -223,5 +223,15 @@ def debris() -> Mesh:
     return Mesh.load(str(files("jaxpose") / DEBRIS_FILE))
 
 
+def scaled(target: Target, factor: float) -> Target:
+    """`target` with every length multiplied by `factor` (> 0), about the target frame's
+    origin O_t: the same shape, `factor` times as large (metres)."""
+    if not factor > 0:
+        raise ValueError(f"scaled: factor must be > 0, got {factor!r}.")
+    if isinstance(target, Boxes):
+        return Boxes(target.centers * factor, target.half_sizes * factor, target.rotations)
+    return Mesh(target.triangles * factor)
+
+
 BUILT_IN = ("n1", "n5", "chibis_m", "satellite", "upper_stage", "fragment", "debris")
 """The names of the built-in targets (functions of this module)."""
