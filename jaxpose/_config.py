@@ -398,7 +398,7 @@ class FineStage(eqx.Module):
       objective's minimum nearer the truth at σ 0.5, 1 and 2 cm, but on the realistic
       benchmark's whole calls neither option kept the gain, and both found two pairs fewer at
       σ 2 cm (docs, Findings: planes among every previous point).
-    - `symmetric`: two-way residuals (static; needs `prev_slab` and `curr_slab` inf): each
+    - `symmetric`: two-way residuals (static): "noisy" (the default), True or False. Each
       round also matches `_fine.BACK_POINTS` previous points that have a plane (thinned
       evenly) to their nearest current points and adds their distances to those points'
       planes, fitted to the current cloud (`Problem.fine_back`, built once in
@@ -406,11 +406,19 @@ class FineStage(eqx.Module):
       planes. Fitted from the true motion, the one-way
       fit's minimum lies several of its own standard deviations from the truth under range
       noise, farther as the noise grows (most on the faceted mesh debris); fitted both
-      ways it lies nearer. The noise-free polish stays one-way (its planes through the
-      points are exact). Off by default: on the realistic benchmark's 224 pairs it cut the
-      median rotation error at σ 0.5–2 cm and the median centroid error at 1 cm, and each
-      call took 1.1–1.25 times as long, but it added a false success at 2 cm (docs,
-      Findings: two-way residuals).
+      ways it lies nearer. True: two-way on every view (needs `prev_slab` and `curr_slab`
+      inf). "noisy": two-way where both sides are the whole surface (both slabs inf) and
+      the previous view shows range noise (`FineCloud.noise` ≥ `_fine.EXACT_RMS`, 1 mm),
+      one-way elsewhere. Noise-free views stay one-way because there the one-way fit is
+      exact and the two-way one lost a face's in-plane turn (docs, Findings: two-way
+      residuals). On four draws of the realistic benchmark (672 noisy pairs) "noisy" found
+      215 / 212 / 192 pairs at σ 0.5 / 1 / 2 cm against one-way's 212 / 202 / 186 and cut
+      every median error; on the realistic benchmark the warm call on noisy views took
+      149–196 ms against 95–108 ms one-way (docs, Findings: two-way residuals on noisy
+      views). The noise-free polish stays one-way
+      (its planes through the points are exact). The tracker's registrations and
+      `Config.capture()` / `Config.tracking()` stay one-way (False): the tracking and
+      capture benchmarks were measured one-way, and the tracker was worse two-way.
     - `residual`: "point_to_plane" (the default) or "plane_to_plane" (static; needs
       `prev_slab` and `curr_slab` inf and `prev_points` None). "plane_to_plane" is GICP's
       cost for planar neighbourhoods: each current point also gets its own plane, fitted to
@@ -451,12 +459,23 @@ class FineStage(eqx.Module):
     anchor: Literal["point", "centroid", "hybrid"] = eqx.field(static=True, default="hybrid")
     smooth_current: bool = eqx.field(static=True, default=False)
     plane_source: Literal["selected", "all", "all_centroids"] = eqx.field(static=True, default="selected")
-    symmetric: bool = eqx.field(static=True, default=False)
+    symmetric: bool | Literal["noisy"] = eqx.field(static=True, default="noisy")
     residual: Literal["point_to_plane", "plane_to_plane"] = eqx.field(static=True, default="point_to_plane")
     rounds: int = eqx.field(static=True, default=20)
     steps: int = eqx.field(static=True, default=20)
     tol: float = eqx.field(static=True, default=1e-4)
     covariance_scale: Scalar = COVARIANCE_SCALE
+
+    @property
+    def whole_surface(self) -> bool:
+        """Whether both sides are the whole visible surface (`prev_slab` = `curr_slab` = inf)."""
+        return not (math.isfinite(self.curr_slab) or math.isfinite(self.prev_slab))
+
+    @property
+    def two_way(self) -> bool:
+        """Whether the fine stage can add two-way residuals (`symmetric` True, or "noisy" on the
+        whole surface): the problem then holds the current side's planes (`Problem.fine_back`)."""
+        return self.symmetric is True or (self.symmetric == "noisy" and self.whole_surface)
 
     def __check_init__(self):
         if self.anchor not in ("centroid", "point", "hybrid"):
@@ -476,7 +495,9 @@ class FineStage(eqx.Module):
             )
         if min(self.points, self.neighbours - 2, self.steps, self.rounds) < 1 or not self.tol > 0:
             raise ValueError("FineStage needs points ≥ 1, neighbours ≥ 3, steps ≥ 1, rounds ≥ 1 and tol > 0.")
-        if self.symmetric and (math.isfinite(self.curr_slab) or math.isfinite(self.prev_slab)):
+        if self.symmetric not in (True, False, "noisy"):
+            raise ValueError(f"FineStage.symmetric must be True, False or 'noisy', got {self.symmetric!r}.")
+        if self.symmetric is True and not self.whole_surface:
             raise ValueError(
                 "FineStage.symmetric needs the whole surface on both sides (prev_slab = curr_slab = inf): each side's "
                 "points are matched against the other side's planes."
@@ -797,7 +818,7 @@ class Config(eqx.Module):
         `planar_fraction` 0.7 and planes through the centroids (`anchor` "centroid"), as when
         the capture benchmark was measured: with every plane, noise-free N5 lost one of its
         four equivalent motions from the hypotheses (`tests/test_capture.py`)."""
-        fine = FineStage(planar_fraction=0.7, anchor="centroid")
+        fine = FineStage(planar_fraction=0.7, anchor="centroid", symmetric=False)
         base = {"so3": RotationSearch(), "refine": Refine(max_steps=30), "fine": fine}
         return cls(**{**base, **changes})
 
@@ -812,7 +833,7 @@ class Config(eqx.Module):
         the 10 s N5 tumbles of `experiments/tumble_tracking.py` (4.5 °/s, 5.5 m) 247–250 of
         251 frames of six seeds succeeded, with registration errors of median 0.043–0.062°.
         It is slower per pair than the default (a neighbour search over 6144 points)."""
-        fine = FineStage(points=6144, guard=1.0, tol=1e-6)
+        fine = FineStage(points=6144, guard=1.0, tol=1e-6, symmetric=False)
         return cls(**{**_full_search_sections(), "fine": fine, **changes})
 
     @classmethod

@@ -553,6 +553,7 @@ def _problem_at_level(
     patterns = [_plane_pattern(A, prev_valid, i, j, offset, d, config) for i, (j, offset) in enumerate(planes)]
     stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *patterns)
     curr_n, curr_valid, curr_status = _current_points(frame, curr, config, dtype)
+    fine = fine_cloud(A, prev_valid, config, planes, d)
     for pattern in patterns:
         status = status | pattern.status
     status = status | curr_status
@@ -578,11 +579,11 @@ def _problem_at_level(
         rm_field=flat([p.rm_field for p in patterns]),
         prev_selected=stacked.selected,
         prev_filled=stacked.filled,
-        fine=fine_cloud(A, prev_valid, config, planes, d),
+        fine=fine,
         status=jnp.asarray(status, jnp.int32),
         planes=planes,
         grid_cells=C,
         coarse=coarse,
         fine_curr=current_side(curr_n, curr_valid, config),
-        fine_back=back_side(curr_n, curr_valid, config, planes, d),
+        fine_back=back_side(curr_n, curr_valid, config, planes, d, fine.noise),
     )

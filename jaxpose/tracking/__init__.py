@@ -44,5 +44,8 @@ from ._track import (
     Track as Track,
 )
 from ._track import (
+    default_tracking_config as default_tracking_config,
+)
+from ._track import (
     track as track,
 )

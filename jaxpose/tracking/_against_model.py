@@ -50,7 +50,15 @@ from .._poses import displacement_from_motion, motion_from_displacement
 from .._problem import _current_points, sized_sequence_config
 from .._uncertainty import motion_covariance
 from ._model import into_model_frame, voxel_means
-from ._track import Chain, Track, filter_keyframes, measurement_usable, predicted_motion, tracking_scale
+from ._track import (
+    Chain,
+    Track,
+    default_tracking_config,
+    filter_keyframes,
+    measurement_usable,
+    predicted_motion,
+    tracking_scale,
+)
 
 MODEL_POINTS = 16384
 """Previous points of the model's fine side (`FineStage.prev_points` for the model): the model
@@ -141,7 +149,9 @@ def register_frame(
         curr=curr,
         curr_valid=curr_valid,
         fine_curr=current_side(curr, curr_valid, config),
-        fine_back=back_side(curr, curr_valid, config, config.patterns.planes(), jnp.asarray(config.patterns.d, dtype)),
+        fine_back=back_side(
+            curr, curr_valid, config, config.patterns.planes(), jnp.asarray(config.patterns.d, dtype), side.fine.noise
+        ),
         planes=config.patterns.planes(),
     )
     start = displacement_from_motion(frame.origin, frame.axes, rotation.astype(dtype), translation.astype(dtype))
@@ -226,8 +236,9 @@ def track_against_model(
     - `track`: what `jp.track(clouds, dt, ...)` returned: its keyframes set the model's
       frames and its measurements the starts.
     - `dt`: seconds between frames.
-    - `config`: the [`jaxpose.Config`][] of the fine stage (default `Config()`); capacities
-      left at None are sized from the clouds.
+    - `config`: the [`jaxpose.Config`][] of the fine stage (default
+      `default_tracking_config()`: `Config()` with one-way residuals, as the chain's
+      registrations); capacities left at None are sized from the clouds.
     - `voxel`: the model's voxel edge (m).
     - `model_points`: points of the model's fine side (`MODEL_POINTS`).
     - `filter_options`: go to `filter_keyframes`.
@@ -254,7 +265,9 @@ def track_against_model(
         raise ValueError(f"clouds must have the track's leading time axis of {T} frames, got {clouds.points.shape}.")
     if not (np.isfinite(voxel) and voxel > 0):
         raise ValueError(f"voxel must be a positive number of metres, got {voxel!r}.")
-    config = model_config(sized_sequence_config(clouds, Config() if config is None else config), model_points)
+    config = model_config(
+        sized_sequence_config(clouds, default_tracking_config() if config is None else config), model_points
+    )
     registrations = _register_all(clouds, track, config, voxel)
     return _filtered(track, registrations, dt, filter_options)
 

@@ -40,6 +40,8 @@ measurements with a fixed noise; simpler, and 0.045–0.073 °/s on the same reg
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -678,6 +680,16 @@ def registration_config(config: Config) -> Config:
     return tracking_scale(config)
 
 
+def default_tracking_config() -> Config:
+    """The tracker's config when none is given: `Config()` with one-way fine-stage residuals
+    (`FineStage.symmetric` False), the registrations the tracking benchmark measured. With
+    two-way residuals (commit 48100b9, since reverted) the benchmark lost its noise-free
+    grazing fragment and the rate error grew on 6 of the 10 other tumbles it reached (docs,
+    Findings: two-way residuals); pass a config to choose otherwise."""
+    config = Config()
+    return dataclasses.replace(config, fine=dataclasses.replace(config.fine, symmetric=False))
+
+
 def tracking_scale(config: Config) -> Config:
     """`config` with `FineStage.covariance_scale` = `TRACKING_COVARIANCE_SCALE` (unchanged
     without a fine stage): the measurement covariance the tracker's filter was tuned with."""
@@ -922,9 +934,10 @@ def track(
 
     - `clouds`: one [`jaxpose.Cloud`][] with a leading time axis T (camera frame c, metres).
     - `dt`: seconds between frames.
-    - `config`: the estimate's [`jaxpose.Config`][] (default `Config()`). At the Python boundary
-      capacities left at None are sized from the whole sequence (any frame may become the
-      keyframe); under jit from the clouds' row counts.
+    - `config`: the estimate's [`jaxpose.Config`][] (default `default_tracking_config()`:
+      `Config()` with one-way fine-stage residuals). At the Python boundary capacities left
+      at None are sized from the whole sequence (any frame may become the keyframe); under
+      jit from the clouds' row counts.
     - `key`: PRNG key of the searches (required).
     - `keyframe_every`, `keyframe_reach`: when the keyframe switches (see `chain_estimates`).
     - `guided`: registrations guided by the motion predicted at a constant rate (see
@@ -939,7 +952,7 @@ def track(
     """
     if key is None:
         raise ValueError("track needs a PRNG key: track(clouds, dt, key=jax.random.key(0)).")
-    config = Config() if config is None else config
+    config = default_tracking_config() if config is None else config
     if not is_concrete(clouds):
         return _track(clouds, jnp.asarray(dt), config, key, keyframe_every, guided, keyframe_reach, filter_options)
     _check_sequence(clouds, dt)
@@ -973,6 +986,7 @@ _track_program = BoundedJit(_track)
 
 __all__ = [
     "TRACKING_COVARIANCE_SCALE",
+    "default_tracking_config",
     "FILTER_STATUS_NAME",
     "Chain",
     "KeyframeFilter",
