@@ -387,7 +387,8 @@ low quantile, because a noise-free view's curvature raises the RMS of some neigh
 across the mesh debris's shallow creases, or on the upper stage's curved wall), never its
 flattest quarter; range noise raises all of them. On two draws of the realistic benchmark
 (seeds 1 and 2, 28 noise-free and 28 views at σ 0.5 cm) it was 0–0.87 mm noise-free (the debris
-the most) and 0.47–4.0 mm at σ 0.5 cm (below 1 mm on three close, face-on views)."""
+the most) and 0.47–4.0 mm at σ 0.5 cm (below 1 mm on three views: two of N1, one of the
+debris)."""
 
 
 def view_noise(smallest: Float[Array, " K"], k: int, face: Bool[Array, " K"]) -> Float[Array, ""]:
