@@ -415,10 +415,10 @@ class FineStage(eqx.Module):
       215 / 212 / 192 pairs at σ 0.5 / 1 / 2 cm against one-way's 212 / 202 / 186 and cut
       every median error; on the realistic benchmark the warm call on noisy views took
       149–196 ms against 95–108 ms one-way (docs, Findings: two-way residuals on noisy
-      views). The noise-free polish stays one-way
-      (its planes through the points are exact). The tracker's registrations and
-      `Config.capture()` / `Config.tracking()` stay one-way (False): the tracking and
-      capture benchmarks were measured one-way, and the tracker was worse two-way.
+      views). The noise-free polish stays one-way (its planes through the points are
+      exact). The tracker's registrations and `Config.capture()` / `Config.tracking()` stay
+      one-way (False): the tracking and capture benchmarks were measured one-way, and the
+      tracker was worse two-way.
     - `residual`: "point_to_plane" (the default) or "plane_to_plane" (static; needs
       `prev_slab` and `curr_slab` inf and `prev_points` None). "plane_to_plane" is GICP's
       cost for planar neighbourhoods: each current point also gets its own plane, fitted to

@@ -451,26 +451,34 @@ def current_side(curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Co
 
 
 def back_side(
-    curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Config, planes, d, noise=None
+    curr: Float[Array, "3 M"], valid: Bool[Array, " M"], config: Config, planes, d, noise
 ) -> FineCloud | None:
     """The current points (frame n, SoA, metres) with their planes, as [`fine_cloud`][] builds
     the previous side's, for the two-way residuals of `FineStage.symmetric` and the
     plane-to-plane residuals of `FineStage.residual`; None where the config asks for neither.
     With the whole surface on both sides its slot s holds the current point that
     [`select_current`][] puts in slot s (the same even thinning of the same mask).
-    `noise`: the previous side's `FineCloud.noise` (metres); with `FineStage.symmetric`
-    "noisy" (and point-to-plane residuals), a view below `EXACT_RMS` gets an empty side of the
-    same shapes instead (no plane is fitted: the fit there is one-way)."""
+    `noise`: the previous side's `FineCloud.noise` (metres). Where only the two-way residuals
+    need the side and [`fits_two_way`][] says the view is fitted one-way, it is an empty side
+    of the same shapes (no plane is fitted)."""
     if config.fine is None or not (config.fine.two_way or config.fine.residual == "plane_to_plane"):
         return None
 
     def build():
         return fine_cloud(curr.T, valid, config, planes, d)
 
-    if config.fine.symmetric != "noisy" or config.fine.residual == "plane_to_plane" or noise is None:
+    if config.fine.residual == "plane_to_plane" or config.fine.symmetric is True:
         return build()
     empty = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(build))
-    return jax.lax.cond(noise >= EXACT_RMS, build, lambda: empty)
+    return jax.lax.cond(fits_two_way(config.fine, noise), build, lambda: empty)
+
+
+def fits_two_way(stage: FineStage, noise) -> bool | Bool[Array, ""]:
+    """Whether a fine stage with two-way residuals (`FineStage.two_way`) adds them on a view
+    whose previous side shows `noise` (`FineCloud.noise`, metres): always with
+    `FineStage.symmetric` True; with "noisy", where the view shows range noise
+    (`EXACT_RMS` or more)."""
+    return True if stage.symmetric is True else noise >= EXACT_RMS
 
 
 def out_of_moved_frame(p: Float[Array, "6"], a: Float[Array, "3 K"]) -> Float[Array, "3 K"]:
@@ -999,9 +1007,7 @@ def fine_refine(
     own_planes = problem.fine_back if config.fine.residual == "plane_to_plane" else None
     if back is not None:
         queries, queried = back_points(fine)
-        # "noisy": two-way only where the previous view shows range noise (`FineStage.symmetric`).
-        noisy = True if config.fine.symmetric is True else fine.noise >= EXACT_RMS
-        queried = queried & two_way & noisy
+        queried = queried & two_way & fits_two_way(config.fine, fine.noise)
 
     def one_round(state):
         # last: each point's last match; q_exact, d_exact: where each point last got an exact
@@ -1090,6 +1096,7 @@ __all__ = [
     "FineResult",
     "fine_cloud",
     "view_noise",
+    "fits_two_way",
     "smallest_eigen",
     "fine_covariance",
     "RotationHold",

@@ -40,8 +40,6 @@ measurements with a fixed noise; simpler, and 0.045–0.073 °/s on the same reg
 
 from __future__ import annotations
 
-import dataclasses
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -51,7 +49,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from .._checks import is_concrete
 from .._cloud import Cloud
-from .._config import TRACKING_COVARIANCE_SCALE, Config
+from .._config import TRACKING_COVARIANCE_SCALE, Config, FineStage
 from .._estimate import AMBIGUOUS, LOW_SCORE, NOT_CONVERGED, SUCCESS, UNCERTAIN, Hypotheses, estimate_problem
 from .._frame import plane_frame
 from .._poses import displacement_from_motion
@@ -686,8 +684,7 @@ def default_tracking_config() -> Config:
     two-way residuals (commit 48100b9, since reverted) the benchmark lost its noise-free
     grazing fragment and the rate error grew on 6 of the 10 other tumbles it reached (docs,
     Findings: two-way residuals); pass a config to choose otherwise."""
-    config = Config()
-    return dataclasses.replace(config, fine=dataclasses.replace(config.fine, symmetric=False))
+    return Config(fine=FineStage(symmetric=False))
 
 
 def tracking_scale(config: Config) -> Config:
