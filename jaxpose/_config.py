@@ -414,11 +414,19 @@ class FineStage(eqx.Module):
       residuals). On four draws of the realistic benchmark (672 noisy pairs) "noisy" found
       215 / 212 / 192 pairs at σ 0.5 / 1 / 2 cm against one-way's 212 / 202 / 186 and cut
       every median error; on the realistic benchmark the warm call on noisy views took
-      149–196 ms against 95–108 ms one-way (docs, Findings: two-way residuals on noisy
-      views). The noise-free polish stays one-way (its planes through the points are
+      137–169 ms against 95–108 ms one-way (docs, Findings: two-way residuals on noisy
+      views; back matches by graph descent). The noise-free polish stays one-way (its planes through the points are
       exact). The tracker's registrations and `Config.capture()` / `Config.tracking()` stay
       one-way (False): the tracking and capture benchmarks were measured one-way, and the
-      tracker was worse two-way.
+      tracker was worse two-way. "finish": as "noisy", but the fits run one-way and a last
+      pass from the best of them adds the two-way residuals (`jaxpose._estimate.fine_passes`),
+      so that the two-way matching runs in one pass instead of in every fit. On the same four
+      draws it found 215 / 205 / 194 pairs at σ 0.5 / 1 / 2 cm with 0 / 0 / 4 false
+      successes, against "noisy"'s 215 / 212 / 192 and 0 / 0 / 3, in a median of 139 / 153 /
+      147 ms against 148 / 166 / 184 ms in the same run (before the back matches descended
+      the graph; docs, Findings: a two-way finish instead of two-way fits). Not the default:
+      it follows the one-way fits' choice between minima, which two-way fits get right more
+      often at σ 1 cm.
     - `residual`: "point_to_plane" (the default) or "plane_to_plane" (static; needs
       `prev_slab` and `curr_slab` inf and `prev_points` None). "plane_to_plane" is GICP's
       cost for planar neighbourhoods: each current point also gets its own plane, fitted to
@@ -459,7 +467,7 @@ class FineStage(eqx.Module):
     anchor: Literal["point", "centroid", "hybrid"] = eqx.field(static=True, default="hybrid")
     smooth_current: bool = eqx.field(static=True, default=False)
     plane_source: Literal["selected", "all", "all_centroids"] = eqx.field(static=True, default="selected")
-    symmetric: bool | Literal["noisy"] = eqx.field(static=True, default="noisy")
+    symmetric: bool | Literal["noisy", "finish"] = eqx.field(static=True, default="noisy")
     residual: Literal["point_to_plane", "plane_to_plane"] = eqx.field(static=True, default="point_to_plane")
     rounds: int = eqx.field(static=True, default=20)
     steps: int = eqx.field(static=True, default=20)
@@ -473,9 +481,9 @@ class FineStage(eqx.Module):
 
     @property
     def two_way(self) -> bool:
-        """Whether the fine stage can add two-way residuals (`symmetric` True, or "noisy" on the
+        """Whether the fine stage can add two-way residuals (`symmetric` True, or "noisy" or "finish" on the
         whole surface): the problem then holds the current side's planes (`Problem.fine_back`)."""
-        return self.symmetric is True or (self.symmetric == "noisy" and self.whole_surface)
+        return self.symmetric is True or (self.symmetric in ("noisy", "finish") and self.whole_surface)
 
     def __check_init__(self):
         if self.anchor not in ("centroid", "point", "hybrid"):
@@ -495,8 +503,8 @@ class FineStage(eqx.Module):
             )
         if min(self.points, self.neighbours - 2, self.steps, self.rounds) < 1 or not self.tol > 0:
             raise ValueError("FineStage needs points ≥ 1, neighbours ≥ 3, steps ≥ 1, rounds ≥ 1 and tol > 0.")
-        if self.symmetric not in (True, False, "noisy"):
-            raise ValueError(f"FineStage.symmetric must be True, False or 'noisy', got {self.symmetric!r}.")
+        if self.symmetric not in (True, False, "noisy", "finish"):
+            raise ValueError(f"FineStage.symmetric must be True, False, 'noisy' or 'finish', got {self.symmetric!r}.")
         if self.symmetric is True and not self.whole_surface:
             raise ValueError(
                 "FineStage.symmetric needs the whole surface on both sides (prev_slab = curr_slab = inf): each side's "

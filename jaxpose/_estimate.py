@@ -18,7 +18,16 @@ from ._capture import capture_search, principal_start, view_maps
 from ._checks import is_concrete
 from ._cloud import Cloud
 from ._config import Config
-from ._fine import FineResult, RotationHold, SlideHold, exact_surface, face_holds, fine_refine, without_range_noise
+from ._fine import (
+    FineResult,
+    RotationHold,
+    SlideHold,
+    exact_surface,
+    face_holds,
+    fine_refine,
+    fits_two_way,
+    without_range_noise,
+)
 from ._frame import PlaneFrame
 from ._objective import hard_score, soft_score
 from ._poses import motion_from_displacement, preceded_by_turn
@@ -416,6 +425,35 @@ def polished(fine: FineResult, exact: FineResult) -> FineResult:
     return tree_select(without_range_noise(fine), better_fine(fine, exact), fine)
 
 
+def finishes_two_way(config: Config) -> bool:
+    """Whether the fine stage's fits run one-way and a last pass adds the two-way residuals
+    (`FineStage.symmetric` "finish" on the whole surface): see [`fine_passes`][]."""
+    return config.fine.symmetric == "finish" and config.fine.two_way
+
+
+def has_last_pass(config: Config) -> bool:
+    """Whether [`fine_passes`][] ends with a last pass after the fits: the noise-free polish
+    (an anchor other than "point") or the two-way finish ([`finishes_two_way`][])."""
+    return config.fine.anchor != "point" or finishes_two_way(config)
+
+
+def finished(fine: FineResult, last: FineResult, best: FineResult, config: Config) -> FineResult:
+    """The chosen fit `fine` after the last pass of [`fine_passes`][], `last`, which started
+    from `best` (the best fit by [`better_fine`][]): where `fine` shows no range noise, its
+    polish ([`polished`][]); else, where the last pass was the two-way finish (a live run) and
+    started from `fine`, that finish when it converged; else `fine`."""
+    if config.fine.anchor != "point":
+        polish = polished(fine, last)
+    else:
+        polish = fine
+    if not finishes_two_way(config):
+        return polish
+    same_start = jnp.all(best.params == fine.params)
+    take = same_start & (last.inliers > 0) & last.converged & jnp.all(jnp.isfinite(last.params))
+    two_way = tree_select(take, last, fine)
+    return tree_select(without_range_noise(fine), polish, two_way)
+
+
 def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResult, config: Config):
     """A turned fit (the challenger) against the best so far, the runner-up `other` and whether
     the estimate is ambiguous. The challenger becomes the best when preferred ([`prefers`][]),
@@ -470,14 +508,25 @@ def fit_spread(chosen: FineResult, runs: FineResult, count: int) -> Float[Array,
 def fine_passes(
     problem: Problem, config: Config, starts: Float[Array, "k 6"], turns: Float[Array, "r 3"] | None = None
 ) -> FineResult:
-    """The fine stage's runs, stacked `(k + r + 1,)` (or `(k + r,)` with `FineStage.anchor`
-    "point"): run i < k from `starts[i]` (frame n); then run k + j from the best of those
-    (`best_run`) turned by `turns[j]` about [`symmetry_centre`][] ([`turned`][]; an inactive run,
-    `fine_refine(..., active=False)`, where the turn is zero); then, where the best of all
-    shows no range noise, its polish against planes through the previous points (see
-    [`polished`][]; an inactive run otherwise). Each live run's `conflict` is filled in
-    ([`free_space_conflict`][], against the two views' range maps), so that "best" here
-    ([`best_run`][] with the config) and in the contests after it weighs fits far apart by
+    """The fine stage's runs, stacked `(k + r + 1,)` (or `(k + r,)` where the config has no
+    last pass, [`has_last_pass`][]): run i < k from `starts[i]` (frame n); then run k + j from
+    the best of those (`best_run`) turned by `turns[j]` about [`symmetry_centre`][]
+    ([`turned`][]; an inactive run, `fine_refine(..., active=False)`, where the turn is zero);
+    then the last pass, from the best of all:
+
+    - where that best shows no range noise, its polish against planes through the previous
+      points (see [`polished`][]);
+    - else, with `FineStage.symmetric` "finish" ([`finishes_two_way`][]) on a view that shows
+      range noise (`_fine.fits_two_way`), the two-way finish: the same fit with the two-way
+      residuals added. The fits before it run one-way, so that a noisy call pays for the
+      two-way matching in one pass that starts at a converged fit instead of in every fit
+      (docs, Findings: a two-way finish instead of two-way fits);
+    - an inactive run otherwise.
+
+    With `FineStage.symmetric` True, and "noisy" on a view that shows range noise, every fit
+    is two-way. Each live run's `conflict` is
+    filled in ([`free_space_conflict`][], against the two views' range maps), so that "best"
+    here ([`best_run`][] with the config) and in the contests after it weighs fits far apart by
     what the views saw.
 
     One `lax.scan` over the passes, so that the program holds one fine stage, not one per
@@ -486,15 +535,17 @@ def fine_passes(
     count = starts.shape[0]
     turns = jnp.zeros((0, 3), starts.dtype) if turns is None else turns.astype(starts.dtype)
     fits = count + turns.shape[0]
-    passes = fits + (config.fine.anchor != "point")
+    passes = fits + has_last_pass(config)
     fine = problem.fine
     exact = exact_surface(fine)
     centre = symmetry_centre(fine.points, fine.normals, fine.valid, turns[0]) if turns.shape[0] else None
     views = view_maps(problem)
+    can_polish = config.fine.anchor != "point"
+    finishing = finishes_two_way(config)
 
     def one_pass(runs, i):
-        polish = i == fits
-        turning = (i >= count) & ~polish
+        last = i == fits
+        turning = (i >= count) & ~last
         best = best_run(runs, fits, config)
         start = starts[jnp.minimum(i, count - 1)]
         if turns.shape[0]:
@@ -503,8 +554,11 @@ def fine_passes(
             active = ~turning | jnp.any(turn != 0)
         else:
             active = True
-        start = jnp.where(polish, best.params, start)
-        active = jnp.where(polish, without_range_noise(best), active)
+        noise_free = without_range_noise(best)
+        polish = last & noise_free & can_polish
+        finish = (last & ~noise_free & fits_two_way(config.fine, fine.noise)) if finishing else False
+        start = jnp.where(last, best.params, start)
+        active = jnp.where(last, polish | finish, active)
         run = fine_refine(
             problem,
             config,
@@ -512,7 +566,7 @@ def fine_passes(
             tree_select(polish, exact, fine),
             active=active,
             smooth=~polish,
-            two_way=~polish,
+            two_way=finish if finishing else ~polish,
             combine=~polish,
         )
         conflict = jnp.where(run.inliers > 0, free_space_conflict(problem, run.params, views), jnp.nan)
@@ -584,8 +638,8 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
         for i in range(1 + config.fine.from_rest, fits):
             fine, other, ambiguous = contest(fine, other, ambiguous, _take(runs, i), config)
         alternative = other.params
-        if config.fine.anchor != "point":
-            fine = polished(fine, _take(runs, fits))
+        if has_last_pass(config):
+            fine = finished(fine, _take(runs, fits), best_run(runs, fits, config), config)
         # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
         # free it can slide along it (tens of centimetres along a face on random views). Its
         # result is kept unless the method's reference score drops by more than the guard;
@@ -613,8 +667,8 @@ def _capture_stages(problem: Problem, config: Config):
     cap = capture_search(problem, config)
     runs = fine_passes(problem, config, cap.params[:1])
     fine = _take(runs, 0)
-    if config.fine.anchor != "point":
-        fine = polished(fine, _take(runs, 1))
+    if has_last_pass(config):
+        fine = finished(fine, _take(runs, 1), fine, config)
     p = fine.params
     rest = cap.params[1:]
     runner_up = jnp.argmax(jnp.where(cap.distinct[1:], cap.score[1:], -jnp.inf))

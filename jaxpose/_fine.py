@@ -27,7 +27,8 @@ points near the cutting planes:
 - two-way (`FineStage.symmetric`; by default only on views that show range noise,
   `FineCloud.noise`): previous points (`BACK_POINTS`, thinned evenly) are also matched to
   their nearest current points, and their distances to those points' planes, fitted to the
-  current cloud (`back_side`), join the residuals (`back_residuals`).
+  current cloud (`back_side`), join the residuals (`back_residuals`); they are matched in
+  the same phases as the forward matches (`back_matches`, `GRAPH_SHIFT`).
 
 This is point-to-plane ICP (Chen & Medioni 1992) on the selected points:
 rounds of nearest-neighbour matching (a voxel search, or, while the points have moved
@@ -476,7 +477,7 @@ def back_side(
 def fits_two_way(stage: FineStage, noise) -> bool | Bool[Array, ""]:
     """Whether a fine stage with two-way residuals (`FineStage.two_way`) adds them on a view
     whose previous side shows `noise` (`FineCloud.noise`, metres): always with
-    `FineStage.symmetric` True; with "noisy", where the view shows range noise
+    `FineStage.symmetric` True; with "noisy" or "finish", where the view shows range noise
     (`EXACT_RMS` or more)."""
     return True if stage.symmetric is True else noise >= EXACT_RMS
 
@@ -905,10 +906,11 @@ def least_squares_solver(tol: float) -> optx.GaussNewton:
 
 BACK_POINTS = 1024
 """Previous points (with a plane, thinned evenly) that the two-way half of a round matches
-against the current side (`back_residuals`). Every previous point (4096) made the call 1.7–2.3
-times as long as the one-way fit's on the realistic benchmark, these 1.1–1.25 times (the
-back matches search the voxels in every round), with mixed changes in accuracy (docs,
-Findings: two-way residuals)."""
+against the current side (`back_matches`, `back_residuals`). Every previous point (4096)
+made the call 1.7–2.3 times as long as the one-way fit's on the realistic benchmark, these
+1.1–1.25 times, with mixed changes in accuracy (docs, Findings: two-way residuals); both
+measured when the back matches searched the voxels in every round, as they now do only
+where the forward matches would (`GRAPH_SHIFT`)."""
 
 
 def back_points(fine: FineCloud) -> tuple[Float[Array, "3 B"], Bool[Array, " B"]]:
@@ -930,21 +932,35 @@ def point_terms(moved: Float[Array, "3 S"], matched: Float[Array, "3 S"], root_w
     return tuple(POINT_WEIGHT * root_w * (moved[k] - matched[k]) for k in range(3))
 
 
-def back_residuals(back: FineCloud, points: Float[Array, "3 B"], live, p: Float[Array, "6"], inlier):
-    """The two-way half of a round (`FineStage.symmetric`): the previous points `points`
-    (frame ν ≈ the previous cloud's frame n; [`back_points`][]) where `live`, each moved into
-    frame n of the current cloud at p (`out_of_moved_frame`), are matched to their nearest
-    current points (`back`, the voxel search every round); the matches within `inlier`
-    (metres) of a current point with a plane get Cauchy weights from their distances to its
-    plane (`_robust_weights`). Returns a function of p giving the weighted plane distances
-    and, like the forward residuals, the `POINT_WEIGHT` point-to-point ones (metres)."""
+def back_matches(back: FineCloud, points: Float[Array, "3 B"], live, p: Float[Array, "6"], lasts, local, first, inlier):
+    """The two-way half of a round's matches (`FineStage.symmetric`): the previous points
+    `points` (frame ν ≈ the previous cloud's frame n; [`back_points`][]) where `live`, each
+    moved into frame n of the current cloud at p (`out_of_moved_frame`), matched to their
+    nearest current points (`back`) as the forward matches are ([`_round_matches`][]: a voxel
+    search in a fit's `first` round, a step of graph descent where `local`, certified graph
+    matches otherwise; `lasts` = (last match, where each point last got an exact match, its
+    distance, the finish phase)). Returns the index, the distance (metres), which matches are
+    exact, and the moved points. With no live query (a one-way run of the "noisy" default on a
+    noise-free view) nothing is searched."""
     moved = jax.lax.stop_gradient(out_of_moved_frame(p, points))
-    # No live query (a one-way run of the "noisy" default on a noise-free view): no search.
-    index, dist = jax.lax.cond(
-        jnp.any(live),
-        lambda: nearest(back.grid, moved, NEIGHBOUR_SLOTS),
-        lambda: (jnp.zeros(live.shape, jnp.int32), jnp.full(live.shape, jnp.inf, moved.dtype)),
+    unmatched = (
+        jnp.zeros(live.shape, jnp.int32),
+        jnp.full(live.shape, jnp.inf, moved.dtype),
+        jnp.zeros(live.shape, bool),
     )
+    index, dist, exact = jax.lax.cond(
+        jnp.any(live), lambda: _round_matches(back, moved, live, lasts, local, first, inlier), lambda: unmatched
+    )
+    return index, dist, exact, moved
+
+
+def back_residuals(back: FineCloud, points: Float[Array, "3 B"], moved, index, dist, live, inlier):
+    """The two-way residuals of a round: the previous points `points` where `live`, at `moved`
+    (their places in frame n of the current cloud at the round's start) with their matches
+    `index`, `dist` ([`back_matches`][]); the matches within `inlier` (metres) of a current point
+    with a plane get Cauchy weights from their distances to its plane (`_robust_weights`).
+    Returns a function of p giving the weighted plane distances and, like the forward
+    residuals, the `POINT_WEIGHT` point-to-point ones (metres)."""
     matched, weight, _ = _matches(back, index, dist, live, inlier)
     root_w = jnp.sqrt(_robust_weights(_plane_distance(moved, matched, weight), weight))
 
@@ -975,8 +991,11 @@ def fine_refine(
     solve only S residuals, so matching once per round rather than once per solver evaluation
     made the stage about 6× cheaper (370 → 65 ms on N5 variant 2); matching by graph descent
     where the points moved little since the last voxel search (`GRAPH_SHIFT`) reads 21
-    candidates per point instead of 144 in most later rounds. Stops when a round that
-    searched the voxels moves p by less than `ROUND_TOL` or than `NOISE_STEP` standard deviations, or after
+    candidates per point instead of 144 in most later rounds; the two-way back matches
+    ([`back_matches`][]) do the same on the current side's graph, with their own bound, and
+    took the noisy calls' median from 148–184 ms to 139–160 ms on four realistic draws (docs,
+    Findings: back matches by graph descent). Stops when a round whose matches (both ways)
+    are exact moves p by less than `ROUND_TOL` or than `NOISE_STEP` standard deviations, or after
     `FineStage.rounds` rounds; `converged` says which. `fine` replaces the problem's previous
     side (e.g. [`exact_surface`][]). With `active` false (a boolean, possibly traced) no round
     runs: the result is `start`, not converged, with no inliers, so that a caller can compile
@@ -1008,17 +1027,37 @@ def fine_refine(
     if back is not None:
         queries, queried = back_points(fine)
         queried = queried & two_way & fits_two_way(config.fine, fine.noise)
+        back_reach = GRAPH_SHIFT * back.grid.size
+    else:
+        queries, queried = jnp.zeros((3, 0), dtype), jnp.zeros(0, bool)
 
     def one_round(state):
         # last: each point's last match; q_exact, d_exact: where each point last got an exact
         # match (a voxel search, or a certified round's) and its distance (inf: the search found
         # none in reach); finishing: the fit's finish phase.
-        y, _, rounds, steps, _, lasts = state
+        y, _, rounds, steps, _, lasts, back_lasts = state
         last, q_exact, d_exact, finishing = lasts
         q = _moved(y * scale, b)
         shift = jnp.max(jnp.where(live, jnp.sum((q - q_exact) ** 2, axis=0), 0.0))
         local = (rounds > 0) & (shift <= reach**2) & ~finishing
         index, dist, exact = _round_matches(fine, q, live, lasts, local, rounds == 0, inlier)
+        back_terms, back_local = None, jnp.asarray(False)
+        if back is not None:
+            # The back matches follow the forward ones' phases, with their own bound on the
+            # motion since their last voxel search (`GRAPH_SHIFT`, in the current side's voxels).
+            b_last, b_exact_at, b_d_exact = back_lasts
+            b_moved = out_of_moved_frame(y * scale, queries)
+            b_shift = jnp.max(jnp.where(queried, jnp.sum((b_moved - b_exact_at) ** 2, axis=0), 0.0))
+            back_local = jnp.any(queried) & (rounds > 0) & (b_shift <= back_reach**2) & ~finishing
+            b_index, b_dist, b_exact, b_moved = back_matches(
+                back, queries, queried, y * scale, (*back_lasts, finishing), back_local, rounds == 0, inlier
+            )
+            back_terms = back_residuals(back, queries, b_moved, b_index, b_dist, queried, inlier)
+            back_lasts = (
+                b_index,
+                jnp.where(b_exact[None], b_moved, b_exact_at),
+                jnp.where(b_exact, b_dist, b_d_exact),
+            )
         matched, weight, near = _matches(fine, index, dist, live, inlier)
         agreement = 1.0
         if own_planes is not None:
@@ -1026,7 +1065,6 @@ def fine_refine(
         r0 = _residuals(y * scale, b, matched, weight)
         w0 = _robust_weights(r0, weight) * agreement
         root_w = jnp.sqrt(w0)
-        back_terms = None if back is None else back_residuals(back, queries, queried, y * scale, inlier)
 
         def fn(y_, _):
             p_ = y_ * scale
@@ -1047,15 +1085,17 @@ def fine_refine(
         )
         small = (moved <= ROUND_TOL) | (within_noise <= NOISE_STEP)
         # Only a round whose matches are exact (a voxel search, or a certified round's
-        # `CERTIFIED_BUFFER`) ends the fit (`GRAPH_SHIFT`).
-        settled = small & ~local
+        # `CERTIFIED_BUFFER`), the back matches' included, ends the fit (`GRAPH_SHIFT`).
+        graph_round = local | back_local
+        settled = small & ~graph_round
         q_exact = jnp.where(exact[None], q, q_exact)
         d_exact = jnp.where(exact, dist, d_exact)
-        lasts = (index, q_exact, d_exact, finishing | (small & local))
-        return y + step, settled, rounds + 1, steps + sol.stats["num_steps"], (matched, weight, near), lasts
+        lasts = (index, q_exact, d_exact, finishing | (small & graph_round))
+        steps = steps + sol.stats["num_steps"]
+        return y + step, settled, rounds + 1, steps, (matched, weight, near), lasts, back_lasts
 
     def more(state):
-        _, settled, rounds, _, _, _ = state
+        _, settled, rounds, _, _, _, _ = state
         return active & ~settled & (rounds < config.fine.rounds)
 
     # Placeholder matches, of the right structure: an active run replaces them in its first round;
@@ -1064,8 +1104,10 @@ def fine_refine(
     unmatched = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
     S = b.shape[1]
     lasts = (jnp.zeros(S, jnp.int32), jnp.zeros_like(b), jnp.full(S, jnp.inf, dtype), jnp.asarray(False))
-    state = (start / scale, jnp.asarray(False), jnp.asarray(0), jnp.asarray(0), unmatched, lasts)
-    y, settled, _, steps, (matched, weight, near), _ = jax.lax.while_loop(more, one_round, state)
+    B = queries.shape[1]
+    back_lasts = (jnp.zeros(B, jnp.int32), jnp.zeros_like(queries), jnp.full(B, jnp.inf, dtype))
+    state = (start / scale, jnp.asarray(False), jnp.asarray(0), jnp.asarray(0), unmatched, lasts, back_lasts)
+    y, settled, _, steps, (matched, weight, near), _, _ = jax.lax.while_loop(more, one_round, state)
     p = y * scale
     # The inlier fraction and RMS use the last round's matches (made where that round started,
     # within ROUND_TOL of p when converged) rather than a fresh nearest-neighbour search at p,
@@ -1090,6 +1132,7 @@ __all__ = [
     "SurfaceProblem",
     "current_side",
     "back_side",
+    "back_matches",
     "back_residuals",
     "combined_planes",
     "FineCloud",
