@@ -972,6 +972,27 @@ def back_residuals(back: FineCloud, points: Float[Array, "3 B"], moved, index, d
     return residuals
 
 
+def back_round(
+    back: FineCloud, points: Float[Array, "3 B"], live, p: Float[Array, "6"], lasts, rounds, finishing, inlier
+):
+    """One round's two-way half: the back matches of the previous points `points` where `live`
+    at p ([`back_matches`][]), in the phase the forward matches are in (`finishing`; a voxel
+    search in round 0), descending the graph while these points have moved less than
+    `GRAPH_SHIFT` of the current side's voxel edges since their last exact match. `lasts` =
+    (last match, where each point last got an exact match, its distance). Returns the round's
+    residual function ([`back_residuals`][]), whether it matched by graph descent (then the
+    round cannot end the fit), and the updated `lasts`."""
+    _, exact_at, d_exact = lasts
+    moved = out_of_moved_frame(p, points)
+    shift = jnp.max(jnp.where(live, jnp.sum((moved - exact_at) ** 2, axis=0), 0.0))
+    reach = GRAPH_SHIFT * back.grid.size
+    local = jnp.any(live) & (rounds > 0) & (shift <= reach**2) & ~finishing
+    index, dist, exact, moved = back_matches(back, points, live, p, (*lasts, finishing), local, rounds == 0, inlier)
+    terms = back_residuals(back, points, moved, index, dist, live, inlier)
+    lasts = (index, jnp.where(exact[None], moved, exact_at), jnp.where(exact, dist, d_exact))
+    return terms, local, lasts
+
+
 def fine_refine(
     problem,
     config: Config,
@@ -1027,7 +1048,6 @@ def fine_refine(
     if back is not None:
         queries, queried = back_points(fine)
         queried = queried & two_way & fits_two_way(config.fine, fine.noise)
-        back_reach = GRAPH_SHIFT * back.grid.size
     else:
         queries, queried = jnp.zeros((3, 0), dtype), jnp.zeros(0, bool)
 
@@ -1043,20 +1063,8 @@ def fine_refine(
         index, dist, exact = _round_matches(fine, q, live, lasts, local, rounds == 0, inlier)
         back_terms, back_local = None, jnp.asarray(False)
         if back is not None:
-            # The back matches follow the forward ones' phases, with their own bound on the
-            # motion since their last voxel search (`GRAPH_SHIFT`, in the current side's voxels).
-            b_last, b_exact_at, b_d_exact = back_lasts
-            b_moved = out_of_moved_frame(y * scale, queries)
-            b_shift = jnp.max(jnp.where(queried, jnp.sum((b_moved - b_exact_at) ** 2, axis=0), 0.0))
-            back_local = jnp.any(queried) & (rounds > 0) & (b_shift <= back_reach**2) & ~finishing
-            b_index, b_dist, b_exact, b_moved = back_matches(
-                back, queries, queried, y * scale, (*back_lasts, finishing), back_local, rounds == 0, inlier
-            )
-            back_terms = back_residuals(back, queries, b_moved, b_index, b_dist, queried, inlier)
-            back_lasts = (
-                b_index,
-                jnp.where(b_exact[None], b_moved, b_exact_at),
-                jnp.where(b_exact, b_dist, b_d_exact),
+            back_terms, back_local, back_lasts = back_round(
+                back, queries, queried, y * scale, back_lasts, rounds, finishing, inlier
             )
         matched, weight, near = _matches(fine, index, dist, live, inlier)
         agreement = 1.0
@@ -1133,6 +1141,7 @@ __all__ = [
     "current_side",
     "back_side",
     "back_matches",
+    "back_round",
     "back_residuals",
     "combined_planes",
     "FineCloud",
