@@ -415,12 +415,13 @@ class FineStage(eqx.Module):
       215 / 212 / 192 pairs at σ 0.5 / 1 / 2 cm against one-way's 212 / 202 / 186 and cut
       every median error; on the realistic benchmark the warm call on noisy views took
       137–169 ms against 95–108 ms one-way (docs, Findings: two-way residuals on noisy
-      views; back matches by graph descent). The noise-free polish stays one-way (its planes through the points are
-      exact). The tracker's registrations and `Config.capture()` / `Config.tracking()` stay
-      one-way (False): the tracking and capture benchmarks were measured one-way, and the
-      tracker was worse two-way. "finish": as "noisy", but the fits run one-way and a last
-      pass from the best of them adds the two-way residuals (`jaxpose._estimate.fine_passes`),
-      so that the two-way matching runs in one pass instead of in every fit. On the same four
+      views; back matches by graph descent). The noise-free polish stays one-way (its
+      planes through the points are exact). The tracker's registrations and
+      `Config.capture()` / `Config.tracking()` stay one-way (False): the tracking and capture
+      benchmarks were measured one-way, and the tracker was worse two-way. "finish": as
+      "noisy", but the fits run one-way and a last pass from the best of them adds the
+      two-way residuals (`jaxpose._estimate.fine_passes`), so that the two-way matching runs
+      in one pass instead of in every fit. On the same four
       draws it found 215 / 205 / 194 pairs at σ 0.5 / 1 / 2 cm with 0 / 0 / 4 false
       successes, against "noisy"'s 215 / 212 / 192 and 0 / 0 / 3, in a median of 139 / 153 /
       147 ms against 148 / 166 / 184 ms in the same run (before the back matches descended

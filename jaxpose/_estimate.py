@@ -437,18 +437,17 @@ def has_last_pass(config: Config) -> bool:
     return config.fine.anchor != "point" or finishes_two_way(config)
 
 
-def finished(fine: FineResult, last: FineResult, best: FineResult, config: Config) -> FineResult:
-    """The chosen fit `fine` after the last pass of [`fine_passes`][], `last`, which started
-    from `best` (the best fit by [`better_fine`][]): where `fine` shows no range noise, its
-    polish ([`polished`][]); else, where the last pass was the two-way finish (a live run) and
-    started from `fine`, that finish when it converged; else `fine`."""
-    if config.fine.anchor != "point":
-        polish = polished(fine, last)
-    else:
-        polish = fine
+def finished(fine: FineResult, runs: FineResult, fits: int, config: Config) -> FineResult:
+    """The chosen fit `fine` after the last pass of [`fine_passes`][] (run `fits` of `runs`),
+    which started from the best of the first `fits` runs ([`best_run`][]): where `fine` shows
+    no range noise, its polish ([`polished`][]); else, where the last pass was the two-way
+    finish (a live run) and started from `fine`, that finish when it converged; else
+    `fine`."""
+    last = _take(runs, fits)
+    polish = polished(fine, last) if config.fine.anchor != "point" else fine
     if not finishes_two_way(config):
         return polish
-    same_start = jnp.all(best.params == fine.params)
+    same_start = jnp.all(best_run(runs, fits, config).params == fine.params)
     take = same_start & (last.inliers > 0) & last.converged & jnp.all(jnp.isfinite(last.params))
     two_way = tree_select(take, last, fine)
     return tree_select(without_range_noise(fine), polish, two_way)
@@ -639,7 +638,7 @@ def _box_stages(problem: Problem, config: Config, key: PRNGKeyArray, guess=None)
             fine, other, ambiguous = contest(fine, other, ambiguous, _take(runs, i), config)
         alternative = other.params
         if has_last_pass(config):
-            fine = finished(fine, _take(runs, fits), best_run(runs, fits, config), config)
+            fine = finished(fine, runs, fits, config)
         # The fine stage fits surfaces, not patterns: where the visible faces leave a direction
         # free it can slide along it (tens of centimetres along a face on random views). Its
         # result is kept unless the method's reference score drops by more than the guard;
@@ -668,7 +667,7 @@ def _capture_stages(problem: Problem, config: Config):
     runs = fine_passes(problem, config, cap.params[:1])
     fine = _take(runs, 0)
     if has_last_pass(config):
-        fine = finished(fine, _take(runs, 1), fine, config)
+        fine = finished(fine, runs, 1, config)
     p = fine.params
     rest = cap.params[1:]
     runner_up = jnp.argmax(jnp.where(cap.distinct[1:], cap.score[1:], -jnp.inf))

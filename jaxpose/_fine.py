@@ -932,26 +932,23 @@ def point_terms(moved: Float[Array, "3 S"], matched: Float[Array, "3 S"], root_w
     return tuple(POINT_WEIGHT * root_w * (moved[k] - matched[k]) for k in range(3))
 
 
-def back_matches(back: FineCloud, points: Float[Array, "3 B"], live, p: Float[Array, "6"], lasts, local, first, inlier):
+def back_matches(back: FineCloud, moved: Float[Array, "3 B"], live, lasts, local, first, inlier):
     """The two-way half of a round's matches (`FineStage.symmetric`): the previous points
-    `points` (frame ν ≈ the previous cloud's frame n; [`back_points`][]) where `live`, each
-    moved into frame n of the current cloud at p (`out_of_moved_frame`), matched to their
-    nearest current points (`back`) as the forward matches are ([`_round_matches`][]: a voxel
-    search in a fit's `first` round, a step of graph descent where `local`, certified graph
-    matches otherwise; `lasts` = (last match, where each point last got an exact match, its
-    distance, the finish phase)). Returns the index, the distance (metres), which matches are
-    exact, and the moved points. With no live query (a one-way run of the "noisy" default on a
-    noise-free view) nothing is searched."""
-    moved = jax.lax.stop_gradient(out_of_moved_frame(p, points))
+    ([`back_points`][]) where `live`, at `moved` (their places in frame n of the current cloud
+    at the round's p, `out_of_moved_frame`), matched to their nearest current points (`back`)
+    as the forward matches are ([`_round_matches`][]: a voxel search in a fit's `first` round,
+    a step of graph descent where `local`, certified graph matches otherwise; `lasts` = (last
+    match, where each point last got an exact match, its distance, the finish phase)).
+    Returns the index, the distance (metres) and which matches are exact. With no live query
+    (a one-way run of the "noisy" default on a noise-free view) nothing is searched."""
     unmatched = (
         jnp.zeros(live.shape, jnp.int32),
         jnp.full(live.shape, jnp.inf, moved.dtype),
         jnp.zeros(live.shape, bool),
     )
-    index, dist, exact = jax.lax.cond(
+    return jax.lax.cond(
         jnp.any(live), lambda: _round_matches(back, moved, live, lasts, local, first, inlier), lambda: unmatched
     )
-    return index, dist, exact, moved
 
 
 def back_residuals(back: FineCloud, points: Float[Array, "3 B"], moved, index, dist, live, inlier):
@@ -983,11 +980,11 @@ def back_round(
     residual function ([`back_residuals`][]), whether it matched by graph descent (then the
     round cannot end the fit), and the updated `lasts`."""
     _, exact_at, d_exact = lasts
-    moved = out_of_moved_frame(p, points)
+    moved = jax.lax.stop_gradient(out_of_moved_frame(p, points))
     shift = jnp.max(jnp.where(live, jnp.sum((moved - exact_at) ** 2, axis=0), 0.0))
     reach = GRAPH_SHIFT * back.grid.size
     local = jnp.any(live) & (rounds > 0) & (shift <= reach**2) & ~finishing
-    index, dist, exact, moved = back_matches(back, points, live, p, (*lasts, finishing), local, rounds == 0, inlier)
+    index, dist, exact = back_matches(back, moved, live, (*lasts, finishing), local, rounds == 0, inlier)
     terms = back_residuals(back, points, moved, index, dist, live, inlier)
     lasts = (index, jnp.where(exact[None], moved, exact_at), jnp.where(exact, dist, d_exact))
     return terms, local, lasts

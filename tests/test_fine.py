@@ -385,10 +385,14 @@ def test_a_two_way_finish_fits_one_way_and_adds_the_two_way_residuals_last_on_a_
     err = np.abs(np.asarray(last.params - truth))
     assert np.degrees(err[:3]).max() < 0.5 and 100 * err[3:].max() < 0.5, err
     best = best_run(runs["finish"], fits, finish)
-    np.testing.assert_array_equal(np.asarray(finished(best, last, best, finish).params), np.asarray(last.params))
+    np.testing.assert_array_equal(
+        np.asarray(finished(best, runs["finish"], fits, finish).params), np.asarray(last.params)
+    )
     # A finish that started from another fit than the chosen one is not taken.
     chosen = eqx.tree_at(lambda r: r.params, best, best.params + 1e-3)
-    np.testing.assert_array_equal(np.asarray(finished(chosen, last, best, finish).params), np.asarray(chosen.params))
+    np.testing.assert_array_equal(
+        np.asarray(finished(chosen, runs["finish"], fits, finish).params), np.asarray(chosen.params)
+    )
 
 
 @pytest.mark.slow  # the option itself, as `FineStage.symmetric=True`

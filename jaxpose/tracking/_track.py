@@ -681,9 +681,9 @@ def registration_config(config: Config) -> Config:
 def default_tracking_config() -> Config:
     """The tracker's config when none is given: `Config()` with one-way fine-stage residuals
     (`FineStage.symmetric` False), the registrations the tracking benchmark measured. With
-    two-way residuals (commit 48100b9, since reverted) the benchmark lost its noise-free
-    grazing fragment and the rate error grew on 6 of the 10 other tumbles it reached (docs,
-    Findings: two-way residuals); pass a config to choose otherwise."""
+    two-way residuals the benchmark lost its noise-free grazing fragment and the rate error
+    grew on 6 of the 10 other tumbles it reached (docs, Findings: two-way residuals); pass a
+    config to choose otherwise."""
     return Config(fine=FineStage(symmetric=False))
 
 
