@@ -15,8 +15,10 @@ separately). Per family and overall: median, p90 and max.
     uv run python experiments/tracking_benchmark.py [tumbles] [duration_s] [rate_hz] [mode] [first]
         → results/tracking_benchmark[_<mode>][_from<first>].{json,md}; mode "guided":
           `guided=True`; "every25": keyframes every 25 frames, not by motion
-          (`keyframe_every=25, keyframe_reach=None`); `first`: the index of the first tumble
-          (20 gives a second draw of the same kinds of tumble)
+          (`keyframe_every=25, keyframe_reach=None`); "two_way": `config=jp.Config()`, whose
+          fine stage is two-way on noisy views; `first`: the index of the first tumble
+          (20 gives a second draw of the same kinds of tumble). Every mode saves its
+          registrations (`..._chains.npz`).
     uv run python experiments/tracking_benchmark.py summarise   (the table again from the JSON's rows)
     uv run python experiments/tracking_benchmark.py issue [runs]
         → results/tracking_issue_case.{json,md}: issue 25's own N5 case (`issue_tumble`)
@@ -93,8 +95,14 @@ BENCHMARK_SEEDS = 1000
 
 REACH_SEEDS = 3000
 
-MODES = {"default": {}, "guided": {"guided": True}, "every25": {"keyframe_every": 25, "keyframe_reach": None}}
-"""`jp.track` options of each benchmark mode."""
+MODES = {
+    "default": {},
+    "guided": {"guided": True},
+    "every25": {"keyframe_every": 25, "keyframe_reach": None},
+    "two_way": {"config": jp.Config()},
+}
+"""`jp.track` options of each benchmark mode; "two_way": the registrations with `Config()`'s
+fine stage, two-way on noisy views (the tracker's default is one-way)."""
 
 
 def draw_tumble(index: int, seed_base: int) -> tuple[str, float, Tumble, jax.Array]:
@@ -590,8 +598,7 @@ def main(
 ) -> None:
     """`mode`: one of `MODES`; other modes than the default are written to
     `tracking_benchmark_<mode>.*`. `first`: the index of the first tumble (`one_tumble`); a
-    draw that does not start at 0 is written with the suffix `_from<first>`. Only the
-    default's registrations are saved."""
+    draw that does not start at 0 is written with the suffix `_from<first>`."""
     rows = []
     for index in range(first, first + tumbles):
         row = one_tumble(index, duration, rate_hz, MODES[mode])
@@ -599,9 +606,8 @@ def main(
         print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
     suffix = ("" if mode == "default" else f"_{mode}") + ("" if first == 0 else f"_from{first}")
     write(rows, tumbles, duration, rate_hz, "tracking_benchmark" + suffix)
-    if mode == "default":
-        stacked = {field: np.stack([s[field] for s in SAVED]) for field in SAVED[0]}
-        np.savez_compressed(RESULTS / f"tracking_benchmark{suffix}_chains.npz", **stacked)
+    stacked = {field: np.stack([s[field] for s in SAVED]) for field in SAVED[0]}
+    np.savez_compressed(RESULTS / f"tracking_benchmark{suffix}_chains.npz", **stacked)
 
 
 if __name__ == "__main__":
