@@ -43,6 +43,13 @@ separately). Per family and overall: median, p90 and max.
           through `identify` (Euler's equations fitted over the whole window), the rate and
           attitude errors at the end of the fitted motion beside the filter's: how much a
           dynamical model moves the rate goal with the registrations held fixed
+    uv run python experiments/tracking_benchmark.py model [name]
+        → results/<name>_model.{json,md} (name: tracking_benchmark by default): the saved
+          registrations of that run and the same clouds (simulated again with the run's keys)
+          through `jp.track_against_model`: every frame registered against the body-frame
+          model of the keyframes so far, filtered; the rate and attitude errors at the end
+          beside the chain's, the frames fused against the model and the seconds it took
+          (compile included in the first tumble's)
     uv run python experiments/tracking_benchmark.py reach [tumbles] [duration_s] [rate_hz]
         → results/tracking_reach.{json,md}: how far one keyframe reaches: every frame of
           `tumbles` other random tumbles (seeds 3000 + i, not the benchmark's) registered
@@ -65,6 +72,7 @@ import numpy as np
 from _common import RESULTS, write_json
 
 import jaxpose as jp
+from jaxpose._estimate import NOT_CONVERGED, SUCCESS
 from jaxpose._problem import sized_sequence_config
 from jaxpose.sim import Tumble, simulate_sequence
 from jaxpose.sim._sequence import C_FROM_O
@@ -393,6 +401,47 @@ def identified(name: str = "tracking_benchmark") -> None:
     (RESULTS / f"{name}_identified.md").write_text(table)
 
 
+def saved_track(saved: dict) -> jp.Track:
+    """A saved run's registrations (`REGISTRATIONS`) as the `Track` that
+    `jp.track_against_model` reads: its measurements, keyframes and which frames registered
+    (a success or accepted by continuity: both count as success here)."""
+    registered = np.asarray(saved["status"]) == SUCCESS
+    registered |= np.asarray(saved["continuity"], bool)
+    return jp.Track.of_measurements(
+        jnp.asarray(saved["rotations"]),
+        jnp.asarray(saved["points"]),
+        jnp.asarray(saved["keyframes"]),
+        jnp.asarray(saved["measurement_cov"]),
+        status=jnp.where(jnp.asarray(registered), SUCCESS, NOT_CONVERGED),
+    )
+
+
+def against_model(name: str = "tracking_benchmark") -> None:
+    """The saved run `name`'s tumbles tracked against the body-frame model (see the module
+    docstring) → `<name>_model.{json,md}`."""
+    benchmark, saved = saved_tumbles(name)
+    duration, rate_hz = benchmark["duration_s"], benchmark["rate_hz"]
+    rows = []
+    for row, chain in zip(benchmark["rows"], saved, strict=True):
+        family, sigma, tumble, key = draw_tumble(row["tumble"], BENCHMARK_SEEDS)
+        seq = simulate_tumble(family, sigma, tumble, key, duration, rate_hz)
+        clouds = jax.block_until_ready(seq.clouds)
+        t0 = time.perf_counter()
+        model = jax.block_until_ready(jp.track_against_model(clouds, saved_track(chain), 1 / rate_hz))
+        seconds = time.perf_counter() - t0
+        out = {
+            **{k: row[k] for k in ("tumble", "family", "sigma_cm", "camera", "rate_deg_s")},
+            **filter_errors(model, np.asarray(seq.rotations), rate_hz),
+            "chain_rate_error_deg_s": row["rate_error_deg_s"],
+            "chain_attitude_error_deg": row["attitude_error_deg"],
+            "seconds": seconds,
+            "ms_per_frame": 1000 * seconds / (len(seq.rotations) - 1),
+        }
+        rows.append(out)
+        print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in out.items()}, flush=True)
+    write(rows, len(rows), duration, rate_hz, f"{name}_model")
+
+
 def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
     """`chain` with (floor_deg, in radians)² added to the rotation block of every measurement
     covariance (rad², frame c)."""
@@ -621,6 +670,8 @@ if __name__ == "__main__":
         sweep()
     elif sys.argv[1:2] == ["identified"]:
         identified(*sys.argv[2:3])
+    elif sys.argv[1:2] == ["model"]:
+        against_model(*sys.argv[2:3])
     elif sys.argv[1:2] == ["reach"]:
         reach(*(f(a) for f, a in zip((int, float, float), sys.argv[2:], strict=False)))
     elif sys.argv[1:2] == ["issue"]:

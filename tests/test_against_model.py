@@ -10,10 +10,16 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose._estimate import LOW_SCORE, SUCCESS
+from jaxpose._estimate import LOW_SCORE, NOT_CONVERGED, SUCCESS, UNCERTAIN
 from jaxpose._problem import sized_sequence_config
 from jaxpose.sim import Tumble, simulate_sequence
-from jaxpose.tracking._against_model import FrameRegistration, model_config, model_side, register_frame
+from jaxpose.tracking._against_model import (
+    FrameRegistration,
+    agrees_with_chain,
+    model_config,
+    model_side,
+    register_frame,
+)
 
 KEYFRAMES = (0, 3, 6, 9)
 DRIFT_DEG = 1.0
@@ -76,8 +82,10 @@ def test_the_model_takes_out_the_chains_drift(tumble):
     p_true = seq.positions - jnp.einsum("tij,j->ti", R_true, seq.positions[0])
     t_model = model.motions()[0]
     assert np.all(np.linalg.norm(np.asarray(t_model - p_true), axis=1)[kept] < 2e-4)
-    # Every frame is a measurement against the model, anchored at frame 0.
+    # Every frame is a measurement against the model, anchored at frame 0; every kept frame is
+    # a success, so none needed the chain's agreement.
     assert np.all(np.asarray(model.keyframes) == 0)
+    assert not np.any(np.asarray(model.continuity))
     assert np.all(np.isfinite(np.asarray(model.attitude))) and np.all(np.isfinite(np.asarray(model.rate)))
 
 
@@ -132,3 +140,26 @@ def test_track_against_model_checks_its_input(sequence):
         jp.track_against_model(clouds, chain, 0.2, voxel=-1.0)
     with pytest.raises(ValueError, match="fine stage"):
         jp.track_against_model(clouds, chain, 0.2, config=jp.Config(fine=None))
+
+
+def _registration(angle_deg: float, status: int, cov_scale: float = 1e-6) -> FrameRegistration:
+    """A registration turned `angle_deg` about (0.6, 0, 0.8) from the identity."""
+    R = jaxlie.SO3.exp(jnp.radians(angle_deg) * jnp.array([0.6, 0.0, 0.8])).as_matrix()
+    return FrameRegistration(R, jnp.zeros(3), jnp.asarray(status, jnp.int32), jnp.eye(6) * cov_scale, jnp.asarray(0.9))
+
+
+def test_a_weak_registration_is_accepted_only_where_it_agrees_with_the_chain():
+    """Within `WEAK_FRACTION` × `ambiguous_deg` (1°) of the chain's registration of the frame, a
+    not-converged or uncertain fit against the model counts; beyond it, with a covariance that
+    cannot be fused, a low score or as a success (taken by its own status) it does not."""
+    config = jp.Config()
+    chain = np.eye(3)
+    assert agrees_with_chain(_registration(0.5, NOT_CONVERGED), chain, config)
+    assert agrees_with_chain(_registration(0.9, UNCERTAIN), chain, config)
+    assert not agrees_with_chain(_registration(1.1, NOT_CONVERGED), chain, config)
+    assert not agrees_with_chain(_registration(0.1, LOW_SCORE), chain, config)
+    assert not agrees_with_chain(_registration(0.1, SUCCESS), chain, config)
+    assert not agrees_with_chain(_registration(0.1, UNCERTAIN, cov_scale=np.nan), chain, config)
+    # The gate follows the config's ambiguity angle.
+    wide = jp.Config(thresholds=jp.Thresholds(ambiguous_deg=2.0))
+    assert agrees_with_chain(_registration(1.5, NOT_CONVERGED), chain, wide)

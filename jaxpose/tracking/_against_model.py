@@ -19,8 +19,10 @@ into view) is matched against every earlier view of it.
 the default point-to-plane fit), first from the motion of the last registrations carried on at
 their rate (`_predicted_start`), and where that fit is no success, from the chain's own
 measurement keyframe → k composed with the keyframe's model-registered motion
-(`_chain_start`). No pattern search: the chain has already resolved the motion to within its
-drift, inside the fine stage's basin. The rate's start comes first: between frames a few
+(`_chain_start`). A fit that stays weak (not converged, or uncertain) but lies within 1° of
+the chain's own registration of the frame counts too ([`agrees_with_chain`][]): under 2 cm of
+range noise every fit can be weak. No pattern search: the chain has already resolved the
+motion to within its drift, inside the fine stage's basin. The rate's start comes first: between frames a few
 tens of milliseconds apart it is closer than the chain's, which carries the chain's own
 registration errors. The model's fine side ([`model_side`][]) is built once per keyframe, in
 the model's own plane frame, with `MODEL_POINTS` previous points (the model shows every side;
@@ -48,9 +50,11 @@ from .._fine import CurrentSide, FineCloud, back_side, current_side, fine_cloud,
 from .._frame import PlaneFrame, plane_frame
 from .._poses import displacement_from_motion, motion_from_displacement
 from .._problem import _current_points, sized_sequence_config
+from .._rotations import rotation_angle
 from .._uncertainty import motion_covariance
 from ._model import into_model_frame, voxel_means
 from ._track import (
+    WEAK_FRACTION,
     Chain,
     Track,
     default_tracking_config,
@@ -245,8 +249,10 @@ def track_against_model(
 
     **Returns:** a [`jaxpose.Track`][] whose measurements are first frame → k, all against the
     model (so `keyframes` is 0 for every frame and `rotations` are the registrations
-    themselves, not a chain); `status` is each registration's (`FrameRegistration`); a frame
-    that is not a success keeps its start and is not fused by the filter.
+    themselves, not a chain); `status` is each registration's (`FrameRegistration`);
+    `continuity` marks the weak registrations accepted because they agree with the chain's
+    ([`agrees_with_chain`][]); `registered()` is a success or such a frame. Any other frame
+    keeps its start and is not fused by the filter.
 
     Not better for `jp.identify` than the chain's track: its errors are the model's slow
     drift, shared by many frames; `identify`'s split check raises the covariance for it (on
@@ -268,16 +274,21 @@ def track_against_model(
     config = model_config(
         sized_sequence_config(clouds, default_tracking_config() if config is None else config), model_points
     )
-    registrations = _register_all(clouds, track, config, voxel)
-    return _filtered(track, registrations, dt, filter_options)
+    registrations, agreed = _register_all(clouds, track, config, voxel)
+    return _filtered(track, registrations, agreed, dt, filter_options)
 
 
-def _register_all(clouds: Cloud, track: Track, config: Config, voxel: float) -> FrameRegistration:
+def _register_all(
+    clouds: Cloud, track: Track, config: Config, voxel: float
+) -> tuple[FrameRegistration, Bool[Array, " T"]]:
     """Walk the chain's keyframes in order: model of the keyframes 0 … j that registered, then
     keyframe j's frames registered against it, each from the last registrations' rate carried
     on (`_predicted_start`) and, where that fit is no success, again from the chain's
     measurement composed with keyframe j's motion (`_chain_start`; frame 0's own where the
-    chain lost the frame). Returns every frame's registration (frame 0: the identity)."""
+    chain lost the frame). A fit that is weak (not converged or uncertain) but agrees with the
+    chain's registration of the frame (`agrees_with_chain`) is accepted as well. Returns every
+    frame's registration (frame 0: the identity) and which frames were accepted by that
+    agreement."""
     T = track.rotations.shape[0]
     chain_R, chain_t = np.asarray(track.rotations), np.asarray(track.motions()[0])
     keyframes, registered = np.asarray(track.keyframes), np.asarray(track.registered())
@@ -290,6 +301,7 @@ def _register_all(clouds: Cloud, track: Track, config: Config, voxel: float) -> 
     t = np.zeros((T, 3), dtype)
     status = np.full(T, NOT_CONVERGED, np.int32)
     status[0] = SUCCESS
+    agreed = np.zeros(T, bool)
     # Frame 0's measurement (the identity, against itself) carries the chain's unit covariance:
     # it tells nothing, and `identify` must not weight it.
     cov = np.tile(np.eye(6, dtype=dtype), (T, 1, 1))
@@ -297,7 +309,7 @@ def _register_all(clouds: Cloud, track: Track, config: Config, voxel: float) -> 
     done = [0]  # the frames registered against the model, in order
     for s, j in enumerate(order):
         # Only keyframes that registered against the model enter it (frame 0 is its anchor).
-        included = np.array([status[i] == SUCCESS for i in order]) & (np.arange(len(order)) <= s)
+        included = np.array([status[i] == SUCCESS or agreed[i] for i in order]) & (np.arange(len(order)) <= s)
         pts, live = _fused(model_points, model_valid, R[order], t[order], included, voxel)
         side = model_side(pts, live, config)
         for k in (int(k) for k in np.nonzero(keyframes == j)[0] if k != 0):
@@ -307,22 +319,47 @@ def _register_all(clouds: Cloud, track: Track, config: Config, voxel: float) -> 
             if int(reg.status) != SUCCESS:
                 by_chain = _chain_start(chain_R, chain_t, j, k, R[j], t[j]) if registered[k] else (R[0], t[0])
                 again = register_frame(side, cloud, *by_chain, config)
-                reg = again if int(again.status) == SUCCESS else reg
+                if int(again.status) == SUCCESS:
+                    reg = again
+                elif registered[k]:
+                    for candidate in (again, reg):
+                        if agrees_with_chain(candidate, by_chain[0], config):
+                            reg, agreed[k] = candidate, True
+                            break
             status[k], inliers[k] = int(reg.status), float(reg.inliers)
             cov[k] = np.asarray(reg.covariance)
-            if status[k] == SUCCESS:
+            if status[k] == SUCCESS or agreed[k]:
                 R[k], t[k] = np.asarray(reg.rotation), np.asarray(reg.translation)
                 done.append(k)
             else:
                 R[k], t[k] = by_rate
-    return FrameRegistration(
+    registrations = FrameRegistration(
         jnp.asarray(R), jnp.asarray(t), jnp.asarray(status), jnp.asarray(cov), jnp.asarray(inliers)
     )
+    return registrations, jnp.asarray(agreed)
 
 
-def _filtered(track: Track, reg: FrameRegistration, dt, filter_options) -> Track:
+def agrees_with_chain(reg: FrameRegistration, chain_rotation: np.ndarray, config: Config) -> bool:
+    """Whether a weak registration against the model (not converged or uncertain, with a usable
+    covariance) lies within `WEAK_FRACTION` × `Thresholds.ambiguous_deg` of the chain's
+    registration of the same frame (`chain_rotation`, first frame → k, camera frame c).
+
+    Two registrations of one frame found independently (the chain's by a search against one
+    keyframe, this one by a fit against the model) that agree are evidence of the motion as
+    the chain's motion continuity is: under 2 cm of range noise every estimate of a frame can
+    be weak (Chibis-M and the fragment of the tracking benchmark, whose chains register every
+    frame by continuity), and accepting only successes left those tracks with no frame fused
+    against the model. The filter weighs the accepted frame by its own covariance."""
+    weak = int(reg.status) in (NOT_CONVERGED, UNCERTAIN)
+    usable = bool(measurement_usable(reg.rotation, reg.translation, reg.covariance))
+    gate = np.radians(WEAK_FRACTION * config.thresholds.ambiguous_deg)
+    return bool(weak and usable and float(rotation_angle(reg.rotation, jnp.asarray(chain_rotation))) <= gate)
+
+
+def _filtered(track: Track, reg: FrameRegistration, agreed: Bool[Array, " T"], dt, filter_options) -> Track:
     """The registrations as a chain anchored at frame 0 (every frame its own measurement,
-    frame 0 the only keyframe), through `filter_keyframes`."""
+    frame 0 the only keyframe; the weak ones that agreed with the chain as `continuity`),
+    through `filter_keyframes`."""
     T = reg.rotation.shape[0]
     origin = track.points[0]
     usable = jax.vmap(measurement_usable)(reg.rotation, reg.translation, reg.covariance)
@@ -337,7 +374,7 @@ def _filtered(track: Track, reg: FrameRegistration, dt, filter_options) -> Track
         relative_translations=reg.translation,
         relative_cov=cov,
         switched=jnp.arange(T) == 0,
-        continuity=None,
+        continuity=agreed,
     )
     return filter_keyframes(chain, jnp.asarray(dt, reg.rotation.dtype), **filter_options)
 
@@ -347,6 +384,7 @@ __all__ = [
     "MODEL_POINTS",
     "MODEL_VOXEL",
     "FrameRegistration",
+    "agrees_with_chain",
     "ModelSide",
     "model_config",
     "model_side",
