@@ -20,7 +20,7 @@ the default point-to-plane fit), first from the motion of the last registrations
 their rate (`_predicted_start`), and where that fit is no success, from the chain's own
 measurement keyframe → k composed with the keyframe's model-registered motion
 (`_chain_start`). A fit that stays weak (not converged, or uncertain) but lies within 1° of
-the chain's own registration of the frame counts too ([`agrees_with_chain`][]): under 2 cm of
+the chain's own registration of the frame counts too (`agrees_with_chain`): under 2 cm of
 range noise every fit can be weak. No pattern search: the chain has already resolved the
 motion to within its drift, inside the fine stage's basin. The rate's start comes first: between frames a few
 tens of milliseconds apart it is closer than the chain's, which carries the chain's own
@@ -251,7 +251,7 @@ def track_against_model(
     model (so `keyframes` is 0 for every frame and `rotations` are the registrations
     themselves, not a chain); `status` is each registration's (`FrameRegistration`);
     `continuity` marks the weak registrations accepted because they agree with the chain's
-    ([`agrees_with_chain`][]); `registered()` is a success or such a frame. Any other frame
+    (`agrees_with_chain`); `registered()` is a success or such a frame. Any other frame
     keeps its start and is not fused by the filter.
 
     Not better for `jp.identify` than the chain's track: its errors are the model's slow
