@@ -21,7 +21,8 @@ separately). Per family and overall: median, p90 and max.
           registrations (`..._chains.npz`).
     uv run python experiments/tracking_benchmark.py summarise   (the table again from the JSON's rows)
     uv run python experiments/tracking_benchmark.py issue [runs]
-        → results/tracking_issue_case.{json,md}: issue 25's own N5 case (`issue_tumble`)
+        → results/tracking_issue_case.{json,md}: issue 25's own N5 case (`issue_tumble`),
+          and results/tracking_issue_case_model.{json,md}: each run against the model
     uv run python experiments/tracking_benchmark.py registrations
         → results/tracking_registrations.{json,md}: the saved registrations' rotation errors
           (keyframe → k against the truth), successes apart from those motion continuity
@@ -423,23 +424,30 @@ def against_model(name: str = "tracking_benchmark") -> None:
     duration, rate_hz = benchmark["duration_s"], benchmark["rate_hz"]
     rows = []
     for row, chain in zip(benchmark["rows"], saved, strict=True):
-        family, sigma, tumble, key = draw_tumble(row["tumble"], BENCHMARK_SEEDS)
-        seq = simulate_tumble(family, sigma, tumble, key, duration, rate_hz)
-        clouds = jax.block_until_ready(seq.clouds)
-        t0 = time.perf_counter()
-        model = jax.block_until_ready(jp.track_against_model(clouds, saved_track(chain), 1 / rate_hz))
-        seconds = time.perf_counter() - t0
-        out = {
-            **{k: row[k] for k in ("tumble", "family", "sigma_cm", "camera", "rate_deg_s")},
-            **filter_errors(model, np.asarray(seq.rotations), rate_hz),
-            "chain_rate_error_deg_s": row["rate_error_deg_s"],
-            "chain_attitude_error_deg": row["attitude_error_deg"],
-            "seconds": seconds,
-            "ms_per_frame": 1000 * seconds / (len(seq.rotations) - 1),
-        }
-        rows.append(out)
-        print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in out.items()}, flush=True)
+        _, _, tumble, key = draw_tumble(row["tumble"], BENCHMARK_SEEDS)
+        rows.append(model_row(row, chain, tumble, key, duration, rate_hz))
     write(rows, len(rows), duration, rate_hz, f"{name}_model")
+
+
+def model_row(row: dict, chain: dict, tumble: Tumble, key, duration: float, rate_hz: float) -> dict:
+    """One tracked tumble (its benchmark `row` and saved registrations `chain`) again against
+    the body-frame model: the clouds simulated again with the tumble's `key`, then
+    `jp.track_against_model`; the errors beside the chain's and the seconds it took."""
+    seq = simulate_tumble(row["family"], row["sigma_cm"], tumble, key, duration, rate_hz)
+    clouds = jax.block_until_ready(seq.clouds)
+    t0 = time.perf_counter()
+    model = jax.block_until_ready(jp.track_against_model(clouds, saved_track(chain), 1 / rate_hz))
+    seconds = time.perf_counter() - t0
+    out = {
+        **{k: row[k] for k in ("tumble", "family", "sigma_cm", "camera", "rate_deg_s")},
+        **filter_errors(model, np.asarray(seq.rotations), rate_hz),
+        "chain_rate_error_deg_s": row["rate_error_deg_s"],
+        "chain_attitude_error_deg": row["attitude_error_deg"],
+        "seconds": seconds,
+        "ms_per_frame": 1000 * seconds / (len(seq.rotations) - 1),
+    }
+    print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in out.items()}, flush=True)
+    return out
 
 
 def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
@@ -633,13 +641,17 @@ def resummarise() -> None:
 
 def issue_case(runs: int = 3, duration: float = 10.0, rate_hz: float = 25.0) -> None:
     """Issue 25's own case (`issue_tumble`, σ = 1 cm) with `runs` independent noise draws →
-    `tracking_issue_case.{json,md}`."""
-    rows = []
+    `tracking_issue_case.{json,md}`, and each run tracked again against the body-frame model
+    (`model_row`) → `tracking_issue_case_model.{json,md}`."""
+    rows, models = [], []
     for run in range(runs):
-        row = run_tumble(run, "n5", 1.0, issue_tumble(), jax.random.key(2000 + run), duration, rate_hz)
+        key = jax.random.key(2000 + run)
+        row = run_tumble(run, "n5", 1.0, issue_tumble(), key, duration, rate_hz)
         rows.append(row)
         print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+        models.append(model_row(row, SAVED[-1], issue_tumble(), key, duration, rate_hz))
     write(rows, runs, duration, rate_hz, "tracking_issue_case")
+    write(models, runs, duration, rate_hz, "tracking_issue_case_model")
 
 
 def main(
