@@ -406,8 +406,7 @@ def saved_track(saved: dict) -> jp.Track:
     """A saved run's registrations (`REGISTRATIONS`) as the `Track` that
     `jp.track_against_model` reads: its measurements, keyframes and which frames registered
     (a success or accepted by continuity: both count as success here)."""
-    registered = np.asarray(saved["status"]) == SUCCESS
-    registered |= np.asarray(saved["continuity"], bool)
+    registered = is_registered(np.asarray(saved["status"]), np.asarray(saved["continuity"], bool))
     return jp.Track.of_measurements(
         jnp.asarray(saved["rotations"]),
         jnp.asarray(saved["points"]),

@@ -22,11 +22,11 @@ measurement keyframe → k composed with the keyframe's model-registered motion
 (`_chain_start`). A fit that stays weak (not converged, or uncertain) but lies within 1° of
 the chain's own registration of the frame counts too (`agrees_with_chain`): under 2 cm of
 range noise every fit can be weak. No pattern search: the chain has already resolved the
-motion to within its drift, inside the fine stage's basin. The rate's start comes first: between frames a few
-tens of milliseconds apart it is closer than the chain's, which carries the chain's own
-registration errors. The model's fine side ([`model_side`][]) is built once per keyframe, in
-the model's own plane frame, with `MODEL_POINTS` previous points (the model shows every side;
-a frame's view shows about half of them).
+motion to within its drift, inside the fine stage's basin. The rate's start comes first:
+between frames a few tens of milliseconds apart it is closer than the chain's, which carries
+the chain's own registration errors. The model's fine side ([`model_side`][]) is built once
+per keyframe, in the model's own plane frame, with `MODEL_POINTS` previous points (the model
+shows every side; a frame's view shows about half of them).
 
 **Frames** (camera frame c, metres): the motion from the first frame to frame k is
 x ↦ R_0k x + t_0k, as in [`jaxpose.Track`][].
@@ -59,6 +59,7 @@ from ._track import (
     Track,
     default_tracking_config,
     filter_keyframes,
+    is_registered,
     measurement_usable,
     predicted_motion,
     tracking_scale,
@@ -309,7 +310,8 @@ def _register_all(
     done = [0]  # the frames registered against the model, in order
     for s, j in enumerate(order):
         # Only keyframes that registered against the model enter it (frame 0 is its anchor).
-        included = np.array([status[i] == SUCCESS or agreed[i] for i in order]) & (np.arange(len(order)) <= s)
+        counted = np.asarray(is_registered(jnp.asarray(status[order]), jnp.asarray(agreed[order])))
+        included = counted & (np.arange(len(order)) <= s)
         pts, live = _fused(model_points, model_valid, R[order], t[order], included, voxel)
         side = model_side(pts, live, config)
         for k in (int(k) for k in np.nonzero(keyframes == j)[0] if k != 0):
