@@ -51,6 +51,12 @@ separately). Per family and overall: median, p90 and max.
           model of the keyframes so far, filtered; the rate and attitude errors at the end
           beside the chain's, the frames fused against the model and the seconds it took
           (compile included in the first tumble's)
+    uv run --extra peers python experiments/tracking_benchmark.py gicp [name]
+        → results/<name>_gicp.{json,md}: a peer tracker on the same clouds (simulated again
+          with the run's keys): small_gicp GICP registers each frame against the keyframe the
+          saved jaxpose run used, and `filter_keyframes` filters them with jaxpose's
+          covariances, so that only the registrations differ; rate and attitude errors at the
+          end, registration errors keyframe → k and times beside jaxpose's
     uv run python experiments/tracking_benchmark.py reach [tumbles] [duration_s] [rate_hz]
         → results/tracking_reach.{json,md}: how far one keyframe reaches: every frame of
           `tumbles` other random tumbles (seeds 3000 + i, not the benchmark's) registered
@@ -449,6 +455,129 @@ def model_row(row: dict, chain: dict, tumble: Tumble, key, duration: float, rate
     return out
 
 
+GICP_SETTINGS = {
+    "registration_type": "GICP",
+    "downsampling_resolution": 0.01,
+    "max_correspondence_distance": 0.3,
+    "max_iterations": 100,
+    "rotation_epsilon": float(np.radians(1e-3)),
+    "translation_epsilon": 1e-5,
+    "num_threads": 2,
+}
+"""small_gicp's settings in the peer tracker (`gicp_chain`): the realistic benchmark's 1 cm
+downsampling (`jaxpose.evaluation.peers`), issue 21's 0.3 m correspondence distance, and a
+stop at 0.001° and 0.01 mm instead of small_gicp's default 0.1° and 1 mm, which would cap the
+accuracy the filter could draw from it."""
+
+
+def gicp_align(prev: np.ndarray, curr: np.ndarray, init: np.ndarray):
+    """small_gicp GICP (`GICP_SETTINGS`) of the previous points onto the current ones ((N, 3),
+    frame c, m) from the motion `init` (4 × 4): the motion x ↦ R x + t (4 × 4) and whether it
+    converged."""
+    import small_gicp
+
+    result = small_gicp.align(
+        np.asarray(curr, np.float64), np.asarray(prev, np.float64), init_T_target_source=init, **GICP_SETTINGS
+    )
+    return np.asarray(result.T_target_source), bool(result.converged)
+
+
+def mean_registered_cov(saved: dict) -> np.ndarray:
+    """The mean measurement covariance (6, 6) of a saved run's registered frames (frame 0
+    left out), finite ones only."""
+    registered = is_registered(np.asarray(saved["status"]), np.asarray(saved["continuity"], bool))
+    cov = np.asarray(saved["measurement_cov"])
+    usable = np.asarray(registered) & np.all(np.isfinite(cov), axis=(1, 2))
+    usable[0] = False
+    return cov[usable].mean(axis=0)
+
+
+def gicp_chain(clouds: jp.Cloud, saved: dict) -> tuple[Chain, float]:
+    """The peer's chain on one tumble's clouds: frame k registered by GICP (`gicp_align`)
+    against the keyframe the saved jaxpose run registered it against (`saved["keyframes"]`),
+    from the previous frame's motion when that used the same keyframe, else from the
+    identity. Each measurement takes jaxpose's covariance of that frame where jaxpose
+    registered it, else the mean of its registered ones (`mean_registered_cov`), so that the
+    filter weighs both chains alike and only the motions differ; a frame GICP did not converge
+    on is not registered. Chained as `Chain` does (R_0k = R_rel R_0j, t_0k = R_rel t_0j +
+    t_rel; a failed frame keeps the last chained motion), tracked point from frame 0's plane
+    origin (`saved["points"][0]`). Returns the chain and the seconds GICP took."""
+    keyframes = np.asarray(saved["keyframes"])
+    points, valid = np.asarray(clouds.points), np.asarray(clouds.valid)
+    frames = len(keyframes)
+    motions = np.tile(np.eye(4), (frames, 1, 1))  # keyframe → k
+    chained = np.tile(np.eye(4), (frames, 1, 1))  # 0 → k
+    converged = np.ones(frames, bool)
+    seconds = 0.0
+    for k in range(1, frames):
+        j = keyframes[k]
+        same_key = keyframes[k - 1] == j and k - 1 != j and converged[k - 1]
+        init = motions[k - 1] if same_key else np.eye(4)
+        t0 = time.perf_counter()
+        motions[k], converged[k] = gicp_align(points[j][valid[j]], points[k][valid[k]], init)
+        seconds += time.perf_counter() - t0
+        chained[k] = motions[k] @ chained[j] if converged[k] else chained[k - 1]
+    registered = np.asarray(is_registered(np.asarray(saved["status"]), np.asarray(saved["continuity"], bool)))
+    cov = np.asarray(saved["measurement_cov"]).copy()
+    own = registered & np.all(np.isfinite(cov), axis=(1, 2))
+    cov[~own] = mean_registered_cov(saved)
+    origin = np.asarray(saved["points"][0])
+    R, t = chained[:, :3, :3], chained[:, :3, 3]
+    switched = np.zeros(frames, bool)
+    switched[np.unique(keyframes)] = True
+    status = np.where(converged, SUCCESS, NOT_CONVERGED)
+    arrays = (R, t, np.einsum("kij,j->ki", R, origin) + t, status, origin, motions[:, :3, :3], motions[:, :3, 3], cov)
+    chain = Chain(
+        *(jnp.asarray(a, jnp.float32) for a in arrays[:3]),
+        jnp.asarray(status, jnp.int32),
+        *(jnp.asarray(a, jnp.float32) for a in arrays[4:]),
+        jnp.asarray(switched),
+        jnp.zeros(frames, bool),
+    )
+    return chain, seconds
+
+
+def relative_errors(chain: Chain, truth: np.ndarray, keyframes: np.ndarray) -> np.ndarray:
+    """Rotation errors (°) of a chain's measurements keyframe → k against the truth."""
+    true_rel = np.einsum("kij,klj->kil", truth, truth[keyframes])
+    return np.degrees(np.asarray(jp.rotation_angle(chain.relative_rotations, jnp.asarray(true_rel, jnp.float32))))
+
+
+def against_gicp(name: str = "tracking_benchmark") -> None:
+    """The saved run `name`'s tumbles with a peer tracker: GICP's registrations through the
+    same keyframes and filter (`gicp_chain`, `filter_keyframes` with its defaults) →
+    `<name>_gicp.{json,md}`; each row also holds jaxpose's errors from the saved run and both
+    chains' median registration error keyframe → k over the frames each registered."""
+    benchmark, saved = saved_tumbles(name)
+    duration, rate_hz = benchmark["duration_s"], benchmark["rate_hz"]
+    run = jax.jit(lambda chain: filter_keyframes(chain, 1 / rate_hz))
+    rows = []
+    for row, tumble_saved in zip(benchmark["rows"], saved, strict=True):
+        _, _, tumble, key = draw_tumble(row["tumble"], BENCHMARK_SEEDS)
+        seq = simulate_tumble(row["family"], row["sigma_cm"], tumble, key, duration, rate_hz)
+        clouds = jax.block_until_ready(seq.clouds)
+        chain, seconds = gicp_chain(clouds, tumble_saved)
+        truth = np.asarray(seq.rotations)
+        keyframes = np.asarray(tumble_saved["keyframes"])
+        ours = chain_of_track(tumble_saved)
+        ours_ok = np.asarray(is_registered(ours.status, ours.continuity))
+        gicp_ok = np.asarray(chain.status) == SUCCESS
+        ours_ok[0] = gicp_ok[0] = False
+        out = {
+            **{k: row[k] for k in ("tumble", "family", "sigma_cm", "camera", "rate_deg_s")},
+            **filter_errors(run(chain), truth, rate_hz),
+            "jaxpose_rate_error_deg_s": row["rate_error_deg_s"],
+            "jaxpose_attitude_error_deg": row["attitude_error_deg"],
+            "registration_error_median_deg": float(np.median(relative_errors(chain, truth, keyframes)[gicp_ok])),
+            "jaxpose_registration_error_median_deg": float(np.median(relative_errors(ours, truth, keyframes)[ours_ok])),
+            "ms_per_frame": 1000 * seconds / (len(truth) - 1),
+            "jaxpose_ms_per_frame": row["ms_per_frame"],
+        }
+        print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in out.items()}, flush=True)
+        rows.append(out)
+    write(rows, len(rows), duration, rate_hz, f"{name}_gicp")
+
+
 def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
     """`chain` with (floor_deg, in radians)² added to the rotation block of every measurement
     covariance (rad², frame c)."""
@@ -683,6 +812,8 @@ if __name__ == "__main__":
         identified(*sys.argv[2:3])
     elif sys.argv[1:2] == ["model"]:
         against_model(*sys.argv[2:3])
+    elif sys.argv[1:2] == ["gicp"]:
+        against_gicp(*sys.argv[2:3])
     elif sys.argv[1:2] == ["reach"]:
         reach(*(f(a) for f, a in zip((int, float, float), sys.argv[2:], strict=False)))
     elif sys.argv[1:2] == ["issue"]:
