@@ -560,7 +560,7 @@ def against_gicp(name: str = "tracking_benchmark") -> None:
         truth = np.asarray(seq.rotations)
         keyframes = np.asarray(tumble_saved["keyframes"])
         ours = chain_of_track(tumble_saved)
-        ours_ok = np.asarray(is_registered(ours.status, ours.continuity))
+        ours_ok = np.array(is_registered(ours.status, ours.continuity))
         gicp_ok = np.asarray(chain.status) == SUCCESS
         ours_ok[0] = gicp_ok[0] = False
         out = {
