@@ -16,7 +16,8 @@ separately). Per family and overall: median, p90 and max.
         → results/tracking_benchmark[_<mode>][_from<first>].{json,md}; mode "guided":
           `guided=True`; "every25": keyframes every 25 frames, not by motion
           (`keyframe_every=25, keyframe_reach=None`); "two_way": `config=jp.Config()`, whose
-          fine stage is two-way on noisy views; `first`: the index of the first tumble
+          fine stage is two-way on noisy views; "unguided": `guided=False` (jp.track's
+          default is guided, so "guided" runs the default); `first`: the index of the first tumble
           (20 gives a second draw of the same kinds of tumble). Every mode saves its
           registrations (`..._chains.npz`).
     uv run python experiments/tracking_benchmark.py summarise   (the table again from the JSON's rows)
@@ -116,11 +117,14 @@ REACH_SEEDS = 3000
 MODES = {
     "default": {},
     "guided": {"guided": True},
+    "unguided": {"guided": False},
     "every25": {"keyframe_every": 25, "keyframe_reach": None},
     "two_way": {"config": jp.Config()},
 }
-"""`jp.track` options of each benchmark mode; "two_way": the registrations with `Config()`'s
-fine stage, two-way on noisy views (the tracker's default is one-way)."""
+"""`jp.track` options of each benchmark mode; "guided" is the default's (`jp.track`'s
+registrations are guided by the predicted motion), "unguided" the default before it was;
+"two_way": the registrations with `Config()`'s fine stage, two-way on noisy views (the
+tracker's default is one-way)."""
 
 
 def draw_tumble(index: int, seed_base: int) -> tuple[str, float, Tumble, jax.Array]:
