@@ -58,9 +58,10 @@ separately). Per family and overall: median, p90 and max.
           saved jaxpose run used, and `filter_keyframes` filters them with jaxpose's
           covariances, so that only the registrations differ; rate and attitude errors at the
           end, registration errors keyframe → k and times beside jaxpose's
-    uv run python experiments/tracking_benchmark.py gicp_table
-        → results/tracking_gicp.{json,md}: jaxpose's chain against the peer tracker on the
-          two draws' 40 tumbles (`GICP_RUNS`), per noise level
+    uv run python experiments/tracking_benchmark.py gicp_table [base]
+        → results/tracking_gicp[_guided].{json,md}: jaxpose's chain against the peer tracker
+          on the two draws' 40 tumbles of the run `base` (tracking_benchmark, the unguided
+          runs, by default; tracking_benchmark_guided), per noise level
     uv run python experiments/tracking_benchmark.py reach [tumbles] [duration_s] [rate_hz]
         → results/tracking_reach.{json,md}: how far one keyframe reaches: every frame of
           `tumbles` other random tumbles (seeds 3000 + i, not the benchmark's) registered
@@ -589,23 +590,23 @@ def against_gicp(name: str = "tracking_benchmark") -> None:
     write(rows, len(rows), duration, rate_hz, f"{name}_gicp")
 
 
-GICP_RUNS = ("tracking_benchmark_gicp", "tracking_benchmark_from20_gicp")
-"""The peer tracker's runs on the two draws (`against_gicp`) that `gicp_table` compares."""
-
-MODEL_RUNS = ("tracking_benchmark_model", "tracking_benchmark_from20_model")
-"""The same draws tracked against the body-frame model (`against_model`), beside them in `gicp_table`."""
-
-
-def gicp_table() -> None:
-    """jaxpose's chain and the GICP peer tracker on the same tumbles (the rows of `GICP_RUNS`)
-    → `tracking_gicp.{json,md}`: per noise level and over all, the rate error at the end
+def gicp_table(base: str = "tracking_benchmark") -> None:
+    """jaxpose's chain and the GICP peer tracker on the same tumbles: the rows of the peer's
+    runs on the two draws of the run `base` (`<base>_gicp`, `<base>_from20_gicp`, written by
+    `against_gicp`) → `tracking_gicp[<suffix>].{json,md}` (the suffix: what `base` adds to
+    "tracking_benchmark", e.g. "_guided"): per noise level and over all, the rate error at the end
     (median / p90 / max, °/s), the attitude error at the end (median, °), on how many tumbles
     the peer's rate error is the smaller, the median registration error keyframe → k (median
-    over the tumbles of each tumble's median, °) and the median time a frame (ms); beside them
-    the rate error of the same tumbles tracked against the body-frame model (`MODEL_RUNS`)."""
-    rows = [row for name in GICP_RUNS for row in json.loads((RESULTS / f"{name}.json").read_text())["rows"]]
-    models = {r["tumble"]: r for name in MODEL_RUNS for r in json.loads((RESULTS / f"{name}.json").read_text())["rows"]}
-    rows = [{**r, "model_rate_error_deg_s": models[r["tumble"]]["rate_error_deg_s"]} for r in rows]
+    over the tumbles of each tumble's median, °) and the median time a frame (ms); beside them,
+    where `<base>[_from20]_model` exist (`against_model`), the rate error of the same tumbles
+    tracked against the body-frame model."""
+    runs = (f"{base}_gicp", f"{base}_from20_gicp")
+    rows = [row for name in runs for row in json.loads((RESULTS / f"{name}.json").read_text())["rows"]]
+    model_files = [RESULTS / f"{base}{draw}_model.json" for draw in ("", "_from20")]
+    with_model = all(f.exists() for f in model_files)
+    if with_model:
+        models = {r["tumble"]: r for f in model_files for r in json.loads(f.read_text())["rows"]}
+        rows = [{**r, "model_rate_error_deg_s": models[r["tumble"]]["rate_error_deg_s"]} for r in rows]
     levels = {f"{s:g}": [r for r in rows if r["sigma_cm"] == s] for s in NOISE_CM} | {"all": rows}
     out = []
     for level, group in levels.items():
@@ -621,18 +622,24 @@ def gicp_table() -> None:
                 "ms_per_frame_median": float(np.median([r[f"{prefix}ms_per_frame"] for r in group])),
             }
         entry["gicp_better"] = sum(r["rate_error_deg_s"] < r["jaxpose_rate_error_deg_s"] for r in group)
-        model = np.array([r["model_rate_error_deg_s"] for r in group])
-        entry["model_rate"] = {name: float(np.quantile(model, q)) for name, q in QUANTILES.items()}
-        entry["gicp_better_than_model"] = sum(r["rate_error_deg_s"] < r["model_rate_error_deg_s"] for r in group)
+        if with_model:
+            model = np.array([r["model_rate_error_deg_s"] for r in group])
+            entry["model_rate"] = {name: float(np.quantile(model, q)) for name, q in QUANTILES.items()}
+            entry["gicp_better_than_model"] = sum(r["rate_error_deg_s"] < r["model_rate_error_deg_s"] for r in group)
         out.append(entry)
+    model_head = " jaxpose against the model | GICP smaller on |" if with_model else ""
     head = (
-        "| σ, cm | tumbles | rate error at the end, °/s: jaxpose | GICP | GICP smaller on | jaxpose against the "
-        "model | GICP smaller on | attitude, °: jaxpose / GICP | registration error, °: jaxpose / GICP | ms a frame: "
-        "jaxpose / GICP |\n|---|---|---|---|---|---|---|---|---|---|\n"
+        f"| σ, cm | tumbles | rate error at the end, °/s: jaxpose | GICP | GICP smaller on |{model_head} attitude, °: "
+        "jaxpose / GICP | registration error, °: jaxpose / GICP | ms a frame: jaxpose / GICP |\n"
+        f"|---|---|---|---|---|{'---|---|' if with_model else ''}---|---|---|\n"
     )
+
+    def model_cells(e):
+        return f" {cell(e['model_rate'])} | {e['gicp_better_than_model']} |" if with_model else ""
+
     lines = [
         f"| {e['sigma_cm']} | {e['tumbles']} | {cell(e['jaxpose']['rate'])} | {cell(e['gicp']['rate'])} | "
-        f"{e['gicp_better']} | {cell(e['model_rate'])} | {e['gicp_better_than_model']} | "
+        f"{e['gicp_better']} |{model_cells(e)} "
         f"{e['jaxpose']['attitude_median']:.3f} / {e['gicp']['attitude_median']:.3f} | "
         f"{e['jaxpose']['registration_median']:.3f} / {e['gicp']['registration_median']:.3f} | "
         f"{e['jaxpose']['ms_per_frame_median']:.0f} / {e['gicp']['ms_per_frame_median']:.0f} |"
@@ -640,8 +647,9 @@ def gicp_table() -> None:
     ]
     table = head + "\n".join(lines) + "\n"
     print(table)
-    write_json("tracking_gicp.json", {"runs": list(GICP_RUNS), "levels": out})
-    (RESULTS / "tracking_gicp.md").write_text(table)
+    name = "tracking_gicp" + base.removeprefix("tracking_benchmark")
+    write_json(f"{name}.json", {"runs": list(runs), "levels": out})
+    (RESULTS / f"{name}.md").write_text(table)
 
 
 def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
@@ -880,8 +888,8 @@ if __name__ == "__main__":
         against_model(*sys.argv[2:3])
     elif sys.argv[1:2] == ["gicp"]:
         against_gicp(*sys.argv[2:3])
-    elif sys.argv[1:] == ["gicp_table"]:
-        gicp_table()
+    elif sys.argv[1:2] == ["gicp_table"]:
+        gicp_table(*sys.argv[2:3])
     elif sys.argv[1:2] == ["reach"]:
         reach(*(f(a) for f, a in zip((int, float, float), sys.argv[2:], strict=False)))
     elif sys.argv[1:2] == ["issue"]:
