@@ -220,6 +220,15 @@ def filter_errors(result, R: np.ndarray, rate_hz: float) -> dict:
     }
 
 
+def switched_at(keyframes: np.ndarray) -> np.ndarray:
+    """`Chain.switched` of a run whose frame k was registered against frame `keyframes[k]`:
+    frame 0 and every frame some later frame was registered against became keyframes."""
+    switched = np.zeros(len(keyframes), bool)
+    switched[np.unique(keyframes)] = True
+    switched[0] = True
+    return switched
+
+
 def chain_of_track(saved: dict) -> Chain:
     """The `Chain` of registrations a `Track` was filtered from (its `REGISTRATIONS` fields):
     the measurement keyframe j → k of a registered frame is R_0k R_0jᵀ and t_0k − R_rel t_0j,
@@ -229,10 +238,7 @@ def chain_of_track(saved: dict) -> Chain:
     t = np.asarray(chained_motions(R, points)[0])
     R_rel = np.einsum("kij,klj->kil", R, R[keyframes])
     t_rel = t - np.einsum("kij,kj->ki", R_rel, t[keyframes])
-    switched = np.zeros(len(R), bool)
-    switched[np.unique(keyframes)] = True
-    switched[0] = True
-    arrays = (R, t, points, saved["status"], origin, R_rel, t_rel, saved["measurement_cov"], switched)
+    arrays = (R, t, points, saved["status"], origin, R_rel, t_rel, saved["measurement_cov"], switched_at(keyframes))
     return Chain(*(jnp.asarray(a) for a in arrays), jnp.asarray(saved["continuity"]))
 
 
@@ -491,14 +497,17 @@ def gicp_align(prev: np.ndarray, curr: np.ndarray, init: np.ndarray):
     return T, bool(result.converged), bool(np.all(np.isfinite(T)))
 
 
-def mean_registered_cov(saved: dict) -> np.ndarray:
-    """The mean measurement covariance (6, 6) of a saved run's registered frames (frame 0
-    left out), finite ones only."""
-    registered = is_registered(np.asarray(saved["status"]), np.asarray(saved["continuity"], bool))
-    cov = np.asarray(saved["measurement_cov"])
-    usable = np.asarray(registered) & np.all(np.isfinite(cov), axis=(1, 2))
-    usable[0] = False
-    return cov[usable].mean(axis=0)
+def jaxpose_covariances(saved: dict) -> np.ndarray:
+    """A saved run's measurement covariance (T, 6, 6) of each frame it registered with a finite
+    one, and elsewhere the mean of those (frame 0, registered against itself, left out of the
+    mean)."""
+    cov = np.array(saved["measurement_cov"])
+    registered = np.asarray(is_registered(np.asarray(saved["status"]), np.asarray(saved["continuity"], bool)))
+    own = registered & np.all(np.isfinite(cov), axis=(1, 2))
+    averaged = own.copy()
+    averaged[0] = False
+    cov[~own] = cov[averaged].mean(axis=0)
+    return cov
 
 
 def gicp_chain(clouds: jp.Cloud, saved: dict) -> tuple[Chain, float, int]:
@@ -506,7 +515,7 @@ def gicp_chain(clouds: jp.Cloud, saved: dict) -> tuple[Chain, float, int]:
     against the keyframe the saved jaxpose run registered it against (`saved["keyframes"]`),
     from the previous frame's motion when that used the same keyframe, else from the
     identity. Each measurement takes jaxpose's covariance of that frame where jaxpose
-    registered it, else the mean of its registered ones (`mean_registered_cov`), so that the
+    registered it, else the mean of its registered ones (`jaxpose_covariances`), so that the
     filter weighs both chains alike and only the motions differ. Every finite GICP result is
     registered, as a user would take it; the frames on which it met its stop are counted
     (returned). Chained as `Chain` does (R_0k = R_rel R_0j, t_0k = R_rel t_0j +
@@ -528,22 +537,20 @@ def gicp_chain(clouds: jp.Cloud, saved: dict) -> tuple[Chain, float, int]:
         motions[k], converged[k], finite[k] = gicp_align(points[j][valid[j]], points[k][valid[k]], init)
         seconds += time.perf_counter() - t0
         chained[k] = motions[k] @ chained[j] if finite[k] else chained[k - 1]
-    registered = np.asarray(is_registered(np.asarray(saved["status"]), np.asarray(saved["continuity"], bool)))
-    cov = np.asarray(saved["measurement_cov"]).copy()
-    own = registered & np.all(np.isfinite(cov), axis=(1, 2))
-    cov[~own] = mean_registered_cov(saved)
     origin = np.asarray(saved["points"][0])
     R, t = chained[:, :3, :3], chained[:, :3, 3]
-    switched = np.zeros(frames, bool)
-    switched[np.unique(keyframes)] = True
-    status = np.where(finite, SUCCESS, NOT_CONVERGED)
-    arrays = (R, t, np.einsum("kij,j->ki", R, origin) + t, status, origin, motions[:, :3, :3], motions[:, :3, 3], cov)
+    f32 = functools.partial(jnp.asarray, dtype=jnp.float32)
     chain = Chain(
-        *(jnp.asarray(a, jnp.float32) for a in arrays[:3]),
-        jnp.asarray(status, jnp.int32),
-        *(jnp.asarray(a, jnp.float32) for a in arrays[4:]),
-        jnp.asarray(switched),
-        jnp.zeros(frames, bool),
+        rotations=f32(R),
+        translations=f32(t),
+        points=f32(np.einsum("kij,j->ki", R, origin) + t),
+        status=jnp.asarray(np.where(finite, SUCCESS, NOT_CONVERGED), jnp.int32),
+        origin=f32(origin),
+        relative_rotations=f32(motions[:, :3, :3]),
+        relative_translations=f32(motions[:, :3, 3]),
+        relative_cov=f32(jaxpose_covariances(saved)),
+        switched=jnp.asarray(switched_at(keyframes)),
+        continuity=jnp.zeros(frames, bool),
     )
     return chain, seconds, int(converged[1:].sum())
 
