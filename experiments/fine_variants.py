@@ -80,8 +80,9 @@ def benchmark_cases(args):
     return levels, cases, gicp_rows(cases, getattr(args, "peer_from_truth", False))
 
 
-def jaxpose_rows(cases, config):
-    """Every case through one compiled build-and-estimate; the compile time apart."""
+def jaxpose_rows(cases, config, extra=None):
+    """Every case through one compiled build-and-estimate; the compile time apart. `extra`: a
+    function of each `Estimate` whose dict joins that case's row."""
     # The variants below change module constants read at trace time: drop every compiled
     # program, the public path's own (`Problem.build`'s, which `jax.clear_caches` misses) too.
     release_all()
@@ -95,7 +96,8 @@ def jaxpose_rows(cases, config):
         t0 = time.perf_counter()
         est, _, _ = jax.block_until_ready(run(case.prev, case.curr, config, jax.random.fold_in(jax.random.key(0), i)))
         ms = 1e3 * (time.perf_counter() - t0)
-        rows.append({**realistic.errors(case, est.rotation, est.translation), "ms": ms, "status": int(est.status)})
+        row = {**realistic.errors(case, est.rotation, est.translation), "ms": ms, "status": int(est.status)}
+        rows.append(row | (extra(est) if extra else {}))
     return rows, compile_s
 
 

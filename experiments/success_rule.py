@@ -21,45 +21,31 @@ from __future__ import annotations
 
 import argparse
 
-import equinox as eqx
-import jax
 import numpy as np
 from _common import RESULTS, write_json
 from fine_draws import draws
-from fine_variants import release_all
+from fine_variants import jaxpose_rows
 
 import jaxpose as jp
-from jaxpose._estimate import SUCCESS, _build_and_estimate
-from jaxpose._problem import sized_batch_config
+from jaxpose._estimate import SUCCESS
 from jaxpose._uncertainty import rotation_std
-from jaxpose.evaluation import realistic
 
 BOUNDS = (1 / 3, 0.3, 0.25, 0.2)
 """Bounds (°) on the combined standard deviation: the default 1/3 and three lower ones."""
 
 
+def uncertainty(est) -> dict:
+    """What `Status.uncertain` reads of one estimate (°): the largest rotation std, the spread
+    of equally good fits, and the two combined as `is_uncertain` combines them."""
+    std = float(np.degrees(rotation_std(est.covariance)))
+    spread = float(np.degrees(est.spread))
+    return {"std_deg": std, "spread_deg": spread, "combined_std_deg": float(np.hypot(std, spread / 2))}
+
+
 def level_rows(drawn) -> list[dict]:
-    """Every pair of one level through one compiled default call (see the module)."""
-    cases = [case for _, case in drawn]
-    release_all()
-    config = sized_batch_config([(c.prev, c.curr) for c in cases], jp.Config())
-    run = eqx.filter_jit(_build_and_estimate)
-    rows = []
-    for i, (seed, case) in enumerate(drawn):
-        est, _, _ = jax.block_until_ready(run(case.prev, case.curr, config, jax.random.fold_in(jax.random.key(0), i)))
-        std = float(np.degrees(rotation_std(est.covariance)))
-        spread = float(np.degrees(est.spread))
-        rows.append(
-            {
-                "pair": f"seed {seed}: {case.label}",
-                **realistic.errors(case, est.rotation, est.translation),
-                "status": int(est.status),
-                "std_deg": std,
-                "spread_deg": spread,
-                "combined_std_deg": float(np.hypot(std, spread / 2)),
-            }
-        )
-    return rows
+    """Every pair of one level through one compiled default call (`fine_variants.jaxpose_rows`)."""
+    rows, _ = jaxpose_rows([case for _, case in drawn], jp.Config(), extra=uncertainty)
+    return [{"pair": f"seed {seed}: {case.label}", **row} for (seed, case), row in zip(drawn, rows, strict=True)]
 
 
 def summary(rows: list[dict]) -> dict:
