@@ -123,7 +123,7 @@ MODES = {
     "two_way": {"config": jp.Config()},
 }
 """`jp.track` options of each benchmark mode; "guided" is the default's (`jp.track`'s
-registrations are guided by the predicted motion), "unguided" the default before it was;
+registrations are guided by the predicted motion), "unguided" `guided=False`;
 "two_way": the registrations with `Config()`'s fine stage, two-way on noisy views (the
 tracker's default is one-way)."""
 
