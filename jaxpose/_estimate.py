@@ -36,7 +36,7 @@ from ._programs import BoundedJit
 from ._rotations import rotation, rotation_angle
 from ._search import GlobalResult, LocalResult, box_scale, local_refine, restarted_search
 from ._tree import tree_select
-from ._uncertainty import motion_covariance, rotation_std
+from ._uncertainty import motion_uncertainty, rotation_std
 from ._visibility import RangeMap, in_front
 
 
@@ -156,10 +156,14 @@ class Estimate(eqx.Module):
       `FineStage.from_rest` or a fine stage).
     - `covariance`: `(6, 6)` predicted covariance of the motion in the camera frame: the
       rotation as a left rotation vector R R̂ᵀ in radians, then the translation in metres
-      (`jaxpose._uncertainty.motion_covariance`: the fine stage's least squares, scaled by
-      `FineStage.covariance_scale`, calibrated on varied noisy pairs), or None without a fine
-      stage. Its largest rotation standard deviation, combined with half the `spread`, above
-      `Thresholds.max_rotation_std_deg` makes the result `Status.uncertain`.
+      (`jaxpose._uncertainty.motion_covariance`: the fine stage's least squares σ̂² (JᵀJ)⁻¹,
+      times a factor that grows with σ̂, `FineStage.covariance_scale` ·
+      (1 + σ̂ / `FineStage.covariance_noise`), calibrated on varied noisy pairs), or None
+      without a fine stage. Its largest rotation standard deviation, combined with half the
+      `spread`, above `Thresholds.max_rotation_std_deg` makes the result `Status.uncertain`.
+    - `residual_scale`: σ̂, metres: the scale of the fine fit's point-to-plane residuals that
+      `covariance` was computed with (at least `jaxpose._fine.SIGMA_FLOOR`); it measures the
+      range noise of the two views. None without a fine stage.
     - `spread`: the largest rotation angle (radians) between the estimate and another fit of
       the fine stage, from another start, that explains the current cloud as well (inlier
       fractions within `FINE_TIE`; `jaxpose._estimate.fit_spread`): two minima of the fine
@@ -201,6 +205,7 @@ class Estimate(eqx.Module):
     spread: Float[Array, ""]
     hold: RotationHold | None = None
     slide: SlideHold | None = None
+    residual_scale: Float[Array, ""] | None = None
 
     @property
     def status(self) -> Int[Array, "*batch"]:
@@ -730,9 +735,9 @@ def _finish(
     here, in one batch with the estimate (one traced copy of the soft objective in the program
     instead of two)."""
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
-    covariance, uncertain, hold, slide = None, jnp.asarray(False), None, None
+    covariance, residual_scale, uncertain, hold, slide = None, None, jnp.asarray(False), None, None
     if fine is not None:
-        covariance = motion_covariance(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
+        covariance, residual_scale = motion_uncertainty(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
         hold, slide = held_motion(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
         uncertain = is_uncertain(covariance, config, spread) | barely_held(hold, slide, config)
     conditions = [
@@ -775,6 +780,7 @@ def _finish(
         spread=jnp.where(finite, spread, 0.0),
         hold=hold,
         slide=slide,
+        residual_scale=residual_scale,
     )
 
 

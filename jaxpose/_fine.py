@@ -785,14 +785,15 @@ def select_current(
     return problem.curr[:, idx], live
 
 
-def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
-    """Least-squares covariance of a fine-stage result p (radians and metres, frame n):
-    Σ = σ̂² (JᵀJ)⁻¹, with J the Jacobian of the matched point-to-plane residuals at p (the
+def fine_least_squares(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, ""], Float[Array, "6 6"]]:
+    """The two factors of the least-squares covariance of a fine-stage result p (frame n):
+    σ̂ (metres), the residual scale, and (JᵀJ)⁻¹ (radians and metres per metre of residual,
+    squared), with J the Jacobian of the matched point-to-plane residuals at p (the
     Gauss–Newton Hessian of the fine objective) and σ̂² = Σ r² / (n − 6) over the n inliers.
-    Assumes independent residuals; `experiments/nees.py` measures how far that holds. σ̂ is
-    at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite covariance.
-    The residuals are those of the raw current points (`CurrentSide.points`), also where the
-    fit used the smoothed ones: the covariance of a fit to smoothed points is at most this."""
+    σ̂ is at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite
+    covariance. The residuals are those of the raw current points (`CurrentSide.points`),
+    also where the fit used the smoothed ones: the covariance of a fit to smoothed points is
+    at most this one."""
     p = jnp.asarray(p, problem.d.dtype)
     # The raw current points, not the smoothed ones: smoothing correlates neighbouring
     # residuals and shrinks σ̂ below the range noise, which `COVARIANCE_SCALE` was calibrated on.
@@ -801,8 +802,17 @@ def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Arra
     J = jax.jacfwd(_residuals)(p, b, matched, weight)
     r = _residuals(p, b, matched, weight)
     sigma2 = jnp.maximum(jnp.sum(r**2) / jnp.maximum(jnp.sum(weight) - 6, 1), SIGMA_FLOOR**2)
-    cov = sigma2 * jnp.linalg.inv(J.T @ J)
-    return (cov + cov.T) / 2
+    unit = jnp.linalg.inv(J.T @ J)
+    return jnp.sqrt(sigma2), (unit + unit.T) / 2
+
+
+def fine_covariance(problem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
+    """Least-squares covariance of a fine-stage result p (radians and metres, frame n):
+    Σ = σ̂² (JᵀJ)⁻¹, the product of [`fine_least_squares`][]'s two factors. Assumes
+    independent residuals; `experiments/nees.py` and `experiments/nees_realistic.py` measure
+    how far that holds (`FineStage.covariance_scale`, `FineStage.covariance_noise`)."""
+    sigma, unit = fine_least_squares(problem, config, p)
+    return sigma**2 * unit
 
 
 class RotationHold(NamedTuple):
@@ -1148,6 +1158,7 @@ __all__ = [
     "fits_two_way",
     "smallest_eigen",
     "fine_covariance",
+    "fine_least_squares",
     "RotationHold",
     "SlideHold",
     "face_holds",

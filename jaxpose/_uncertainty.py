@@ -15,7 +15,7 @@ import jaxlie
 from jaxtyping import Array, ArrayLike, Float
 
 from ._config import COVARIANCE_SCALE, Config
-from ._fine import SurfaceProblem, fine_covariance
+from ._fine import SurfaceProblem, fine_least_squares
 from ._objective import soft_score
 from ._poses import PARAMETER_SCALE, motion_from_displacement
 from ._problem import Problem
@@ -40,12 +40,21 @@ def covariance(p: Float[Array, "6"], problem: Problem, scale2: float) -> Float[A
     return (sigma + sigma.T) / 2
 
 
-def motion_covariance(problem: SurfaceProblem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
-    """Covariance of the camera-frame motion (R, t) that a fine-stage result p (frame n)
-    measures: J Σ_p Jᵀ, with Σ_p the fine stage's least-squares covariance scaled by
-    `FineStage.covariance_scale` (default `COVARIANCE_SCALE`) and J the Jacobian of
-    p ↦ (log(R(p) R(p̂)ᵀ), t(p)) at p̂. The rotation as a left rotation vector in radians
-    (frame c), then the translation in metres."""
+def covariance_factor(config: Config, sigma: Float[ArrayLike, ""]) -> Float[Array, ""]:
+    """The factor k(σ̂) = `FineStage.covariance_scale` · (1 + σ̂ / `FineStage.covariance_noise`)
+    that turns the least-squares covariance σ̂² (JᵀJ)⁻¹ of a fit with residual scale `sigma`
+    (σ̂, metres) into the predicted one. The fit's errors grow faster with the range noise than
+    σ̂² (JᵀJ)⁻¹ does (the planes fitted to noisy neighbourhoods tilt, and neighbouring
+    residuals share the tilt), so the factor grows with σ̂; `covariance_noise` = inf keeps it
+    constant."""
+    stage = config.fine
+    return stage.covariance_scale * (1 + jnp.asarray(sigma) / stage.covariance_noise)
+
+
+def motion_uncertainty(
+    problem: SurfaceProblem, config: Config, p: Float[Array, "6"]
+) -> tuple[Float[Array, "6 6"], Float[Array, ""]]:
+    """[`motion_covariance`][] and the residual scale σ̂ (metres) it was scaled with."""
     R_hat, _ = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
 
     def motion(q):
@@ -53,9 +62,20 @@ def motion_covariance(problem: SurfaceProblem, config: Config, p: Float[Array, "
         return jnp.concatenate([jaxlie.SO3.from_matrix(R @ R_hat.T).log(), t])
 
     J = jax.jacfwd(motion)(p)
-    cov = config.fine.covariance_scale * fine_covariance(problem, config, p)
+    sigma, unit = fine_least_squares(problem, config, p)
+    cov = covariance_factor(config, sigma) * sigma**2 * unit
     out = J @ cov @ J.T
-    return (out + out.T) / 2
+    return (out + out.T) / 2, sigma
+
+
+def motion_covariance(problem: SurfaceProblem, config: Config, p: Float[Array, "6"]) -> Float[Array, "6 6"]:
+    """Covariance of the camera-frame motion (R, t) that a fine-stage result p (frame n)
+    measures: J Σ_p Jᵀ, with Σ_p = k(σ̂) σ̂² (JᵀJ)⁻¹ the fine stage's least-squares covariance
+    ([`jaxpose._fine.fine_least_squares`][]) times [`covariance_factor`][] (from
+    `FineStage.covariance_scale` and `FineStage.covariance_noise`) and J the Jacobian of
+    p ↦ (log(R(p) R(p̂)ᵀ), t(p)) at p̂. The rotation as a left rotation vector in radians
+    (frame c), then the translation in metres."""
+    return motion_uncertainty(problem, config, p)[0]
 
 
 def rotation_std(cov: Float[Array, "6 6"]) -> Float[Array, ""]:
@@ -76,8 +96,10 @@ def nees(error: Float[ArrayLike, "6"], sigma: Float[ArrayLike, "6 6"]) -> Float[
 __all__ = [
     "COVARIANCE_SCALE",
     "covariance",
+    "covariance_factor",
     "curvature",
     "motion_covariance",
+    "motion_uncertainty",
     "nees",
     "rotation_std",
 ]

@@ -259,13 +259,20 @@ def test_one_status_vocabulary(n5_estimate):
 def test_the_covariance_of_an_exact_fit_is_tight_and_a_covariance(n5_estimate):
     """`Estimate.covariance` (camera frame, rad then m) of the noise-free paper pair: symmetric,
     positive definite, and far inside the uncertainty a success allows. The least squares'
-    own rotation standard deviation (before `FineStage.covariance_scale`) is below 0.008°."""
+    own rotation standard deviation (before the factor `covariance_factor`) is below 0.008°,
+    and its residual scale (`Estimate.residual_scale`) is the floor's order, far below a
+    millimetre."""
+    from jaxpose._fine import SIGMA_FLOOR
+    from jaxpose._uncertainty import covariance_factor
+
     cov = np.asarray(n5_estimate.covariance)
     assert cov.shape == (6, 6)
     np.testing.assert_allclose(cov, cov.T, atol=1e-15)
     assert np.linalg.eigvalsh(cov).min() > 0
+    sigma = float(n5_estimate.residual_scale)
+    assert SIGMA_FLOOR * (1 - 1e-6) <= sigma < 1e-3
     largest = np.linalg.eigvalsh(cov[:3, :3]).max()
-    assert np.degrees(np.sqrt(largest / CONFIG.fine.covariance_scale)) < 0.008
+    assert np.degrees(np.sqrt(largest / float(covariance_factor(CONFIG, sigma)))) < 0.008
     assert not bool(is_uncertain(n5_estimate.covariance, jp.Config()))
 
 

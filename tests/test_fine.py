@@ -26,6 +26,7 @@ from jaxpose._fine import (
     exact_surface,
     fine_cloud,
     fine_covariance,
+    fine_least_squares,
     fine_refine,
     median_magnitude,
     out_of_moved_frame,
@@ -836,6 +837,9 @@ def test_the_point_terms_give_the_normal_equations_of_the_stacked_term(dtype):
 
 
 def test_the_covariance_of_a_whole_surface_fit_of_6144_points_is_positive_definite():
+    """And its residual scale σ̂ (`fine_least_squares`) measures the range noise: with 1 cm along
+    each ray, a point-to-plane residual carries the current point's noise times the cosine of
+    its incidence, and the plane's own; σ̂² (JᵀJ)⁻¹ is `fine_covariance`."""
     noisy = jp.Camera.camcube2(noise_sigma=0.01)
     keys = jax.random.split(jax.random.key(5))
     R1, R2 = paper_rotation("previous"), paper_rotation("variant2")
@@ -847,6 +851,9 @@ def test_the_covariance_of_a_whole_surface_fit_of_6144_points_is_positive_defini
     cov = np.asarray(jax.jit(fine_covariance, static_argnums=1)(problem, config, truth), float)
     assert np.all(np.isfinite(cov))
     assert np.linalg.eigvalsh(cov).min() > 0
+    sigma, unit = jax.jit(fine_least_squares, static_argnums=1)(problem, config, truth)
+    assert 0.004 < float(sigma) < 0.015
+    np.testing.assert_allclose(float(sigma) ** 2 * np.asarray(unit, float), cov, rtol=1e-4, atol=1e-12)
 
 
 def test_a_step_of_one_standard_deviation_measures_one():

@@ -2,6 +2,8 @@
 (`jaxpose._fine.face_holds`) and the status they set (`Thresholds.min_rotation_lever`,
 `Thresholds.min_translation_grip`)."""
 
+import math
+
 import jax
 import jax.numpy as jnp
 import jaxlie
@@ -177,4 +179,6 @@ def test_the_tracker_registers_without_the_hold_checks():
     assert inner.thresholds.min_translation_grip == 0.0
     assert inner.thresholds.min_score == 0.6
     assert inner.fine.covariance_scale == TRACKING_COVARIANCE_SCALE != config.fine.covariance_scale
-    assert inner.fine == dataclasses.replace(config.fine, covariance_scale=TRACKING_COVARIANCE_SCALE)
+    assert inner.fine == dataclasses.replace(
+        config.fine, covariance_scale=TRACKING_COVARIANCE_SCALE, covariance_noise=math.inf
+    )

@@ -40,6 +40,8 @@ measurements with a fixed noise; simpler, and 0.045–0.073 °/s on the same reg
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -688,11 +690,14 @@ def default_tracking_config() -> Config:
 
 
 def tracking_scale(config: Config) -> Config:
-    """`config` with `FineStage.covariance_scale` = `TRACKING_COVARIANCE_SCALE` (unchanged
-    without a fine stage): the measurement covariance the tracker's filter was tuned with."""
+    """`config` with `FineStage.covariance_scale` = `TRACKING_COVARIANCE_SCALE` and
+    `FineStage.covariance_noise` = inf (a constant factor; unchanged without a fine stage):
+    the measurement covariance the tracker's filter was tuned with."""
     if config.fine is None:
         return config
-    return eqx.tree_at(lambda c: c.fine.covariance_scale, config, TRACKING_COVARIANCE_SCALE)
+    return eqx.tree_at(
+        lambda c: (c.fine.covariance_scale, c.fine.covariance_noise), config, (TRACKING_COVARIANCE_SCALE, math.inf)
+    )
 
 
 def chain_estimates(
