@@ -363,6 +363,7 @@ def estimate(
         "ambiguous": bool(result.ambiguous),
         "std": _standard_deviations(result.covariance),
         "spread_deg": math.degrees(float(result.spread)),
+        "residual_scale_cm": None if result.residual_scale is None else 100 * float(result.residual_scale),
         "hypotheses": [
             {
                 "rotation_angles_deg": deg.tolist(),
@@ -392,6 +393,7 @@ def estimate(
         if out["std"] is not None:
             std = out["std"]
             typer.echo(f"1σ camera         {std['rotation_deg']:9.4f} °  {std['translation_cm']:9.4f} cm")
+            typer.echo(f"residual scale σ̂  {out['residual_scale_cm']:9.4f} cm")
         if out["spread_deg"] > 0:
             typer.echo(f"spread of equally good fits {out['spread_deg']:.4f} °")
         for k, h in enumerate(out["hypotheses"][1:], start=2):

@@ -787,8 +787,8 @@ def select_current(
 
 def fine_least_squares(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, ""], Float[Array, "6 6"]]:
     """The two factors of the least-squares covariance of a fine-stage result p (frame n):
-    σ̂ (metres), the residual scale, and (JᵀJ)⁻¹ (radians and metres per metre of residual,
-    squared), with J the Jacobian of the matched point-to-plane residuals at p (the
+    σ̂ (metres), the residual scale, and (JᵀJ)⁻¹ (the covariance of p, radians and metres, per
+    square metre of residual variance), with J the Jacobian of the matched point-to-plane residuals at p (the
     Gauss–Newton Hessian of the fine objective) and σ̂² = Σ r² / (n − 6) over the n inliers.
     σ̂ is at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite
     covariance. The residuals are those of the raw current points (`CurrentSide.points`),

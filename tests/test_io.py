@@ -96,6 +96,7 @@ def test_estimate_command_on_files(saved_pair, paper_clouds, monkeypatch, tmp_pa
     np.testing.assert_allclose(first["translation_cm"], out["camera_frame"]["translation_cm"])
     assert out["ambiguous"] in (True, False)
     assert 0.0 <= out["spread_deg"] < 0.5  # degrees: the fits of a noise-free pair agree
+    assert 0.0 < out["residual_scale_cm"] < 0.1  # centimetres: a noise-free pair's residuals are round-off
 
 
 def test_estimate_command_rejects_bad_input(saved_pair, tmp_path):
