@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import math
 from typing import NamedTuple
 
@@ -48,7 +49,7 @@ import jaxpose as jp
 from jaxpose._config import COVARIANCE_NOISE
 from jaxpose._estimate import STATUS_NAME, barely_held, is_uncertain
 from jaxpose._fine import RotationHold, SlideHold
-from jaxpose._uncertainty import COVARIANCE_SCALE, nees
+from jaxpose._uncertainty import COVARIANCE_SCALE, covariance_factor, nees
 from jaxpose.evaluation import realistic
 
 CHI2_3_95 = 7.81
@@ -104,16 +105,24 @@ RUN_LAW = Law(COVARIANCE_SCALE, COVARIANCE_NOISE)
 """The law of the run (the library's defaults)."""
 
 
-def factor(record: dict, law: Law) -> float:
-    """How much larger a record's covariance is under `law` than under the run's."""
-    sigma = record["residual_scale"]
-    return law.scale * (1 + sigma / law.noise) / (RUN_LAW.scale * (1 + sigma / RUN_LAW.noise))
+def law_config(law: Law) -> jp.Config:
+    """The default config with `law`'s `FineStage.covariance_scale` and `covariance_noise`."""
+    config = jp.Config()
+    fine = dataclasses.replace(config.fine, covariance_scale=law.scale, covariance_noise=law.noise)
+    return dataclasses.replace(config, fine=fine)
 
 
-def rotation_nees(record: dict, law: Law = RUN_LAW) -> float:
+def factors(records: list[dict], law: Law) -> np.ndarray:
+    """How much larger each record's covariance is under `law` than under the run's: the ratio
+    of the two laws' `covariance_factor` at the record's residual scale."""
+    sigma = jnp.asarray([r["residual_scale"] for r in records])
+    return np.asarray(covariance_factor(law_config(law), sigma) / covariance_factor(law_config(RUN_LAW), sigma))
+
+
+def rotation_nees(record: dict, factor: float = 1.0) -> float:
     """`jaxpose._uncertainty.nees` of a record's rotation error against its covariance's
-    rotation block under `law`."""
-    return float(nees(record["error"], factor(record, law) * record["covariance"][:3, :3]))
+    rotation block × factor."""
+    return float(nees(record["error"], factor * record["covariance"][:3, :3]))
 
 
 def successes_at(records: list[dict], law: Law, config: jp.Config) -> np.ndarray:
@@ -121,7 +130,7 @@ def successes_at(records: list[dict], law: Law, config: jp.Config) -> np.ndarray
     whose status is success, uncertain or not converged (the statuses below `uncertain` in
     `_estimate._finish`'s priority) and that `is_uncertain` and `barely_held` pass and whose
     fine stage converged."""
-    covariance = jnp.asarray(np.stack([factor(r, law) * r["covariance"] for r in records]))
+    covariance = jnp.asarray(factors(records, law)[:, None, None] * np.stack([r["covariance"] for r in records]))
     spread = jnp.asarray([r["spread"] for r in records])
     uncertain = jax.vmap(is_uncertain, in_axes=(0, None, 0))(covariance, config, spread)
     zero = jnp.zeros((len(records), 3))
@@ -141,7 +150,7 @@ def outcome(records: list[dict], law: Law, config: jp.Config) -> dict:
     kept = [r for r, success in zip(records, successes_at(records, law, config), strict=True) if success]
 
     def stats(group):
-        values = np.array([rotation_nees(r, law) for r in group])
+        values = np.array([rotation_nees(r, k) for r, k in zip(group, factors(group, law), strict=True)])
         return {
             "successes": len(group),
             "false_successes": sum(not r["found"] for r in group),

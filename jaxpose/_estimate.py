@@ -735,10 +735,11 @@ def _finish(
     here, in one batch with the estimate (one traced copy of the soft objective in the program
     instead of two)."""
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(hard)
+    p = jnp.where(finite, p, jnp.zeros_like(p))
     covariance, residual_scale, uncertain, hold, slide = None, None, jnp.asarray(False), None, None
     if fine is not None:
-        covariance, residual_scale = motion_uncertainty(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
-        hold, slide = held_motion(problem, config, jnp.where(finite, p, jnp.zeros_like(p)))
+        covariance, residual_scale = motion_uncertainty(problem, config, p)
+        hold, slide = held_motion(problem, config, p)
         uncertain = is_uncertain(covariance, config, spread) | barely_held(hold, slide, config)
     conditions = [
         (problem.status != 0, Status.degenerate),
@@ -752,7 +753,6 @@ def _finish(
     result = Status.success
     for condition, item in reversed(conditions):
         result = Status.where(condition, item, result)
-    p = jnp.where(finite, p, jnp.zeros_like(p))
     R, t = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
     params, score, distinct = candidates
     params = jnp.where(jnp.all(jnp.isfinite(params), axis=1, keepdims=True), params, p[None])
