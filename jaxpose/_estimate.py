@@ -20,11 +20,13 @@ from ._cloud import Cloud
 from ._config import Config
 from ._fine import (
     FineResult,
+    FitMatches,
     RotationHold,
     SlideHold,
     exact_surface,
     face_holds,
     fine_refine,
+    fit_matches,
     fits_two_way,
     without_range_noise,
 )
@@ -476,7 +478,7 @@ def contest(best: FineResult, other: FineResult, ambiguous, challenger: FineResu
     return tree_select(wins, challenger, best), runner_up, ambiguous | tied
 
 
-def _take(tree, i: int):
+def _take(tree, i: int | Int[Array, ""]):
     return jax.tree.map(lambda x: x[i], tree)
 
 
@@ -533,6 +535,10 @@ def fine_passes(
     here ([`best_run`][] with the config) and in the contests after it weighs fits far apart by
     what the views saw.
 
+    A fit that reaches an earlier converged fit's result (within `_fine.JOIN_RADIUS`,
+    [`joinable`][]) stops there and takes that result: the same minimum, found again without
+    its last rounds.
+
     One `lax.scan` over the passes, so that the program holds one fine stage, not one per
     start: each copy cost about 1.3 s of tracing and compiling on the 2-core CPU. The passes
     run one after another, as separate calls would."""
@@ -572,9 +578,11 @@ def fine_passes(
             smooth=~polish,
             two_way=finish if finishing else ~polish,
             combine=~polish,
+            joins=joinable(runs, i, fits),
         )
         conflict = jnp.where(run.inliers > 0, free_space_conflict(problem, run.params, views), jnp.nan)
         run = eqx.tree_at(lambda r: r.conflict, run, conflict.astype(run.conflict.dtype))
+        run = tree_select(run.joined >= 0, joined_result(runs, run), run)
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 
     shapes = jax.eval_shape(lambda: fine_refine(problem, config, starts[0]))
@@ -582,6 +590,22 @@ def fine_passes(
     empty = eqx.tree_at(lambda r: r.conflict, empty, jnp.full(passes, jnp.nan, empty.conflict.dtype))
     runs, _ = jax.lax.scan(one_pass, empty, jnp.arange(passes))
     return runs
+
+
+def joinable(runs: FineResult, i: Int[Array, ""], fits: int) -> Float[Array, "k 6"]:
+    """p (frame n) of the fits before pass i of [`fine_passes`][] that a later fit may join
+    (`_fine.JOIN_RADIUS`): live (some inliers) and converged; NaN rows elsewhere, and
+    everywhere for the last pass, which starts at the best fit and refines it."""
+    index = jnp.arange(runs.params.shape[0])
+    usable = (index < i) & (i < fits) & (runs.inliers > 0) & runs.converged
+    return jnp.where(usable[:, None], runs.params, jnp.nan)
+
+
+def joined_result(runs: FineResult, run: FineResult) -> FineResult:
+    """The earlier fit of `runs` that `run` joined (`FineResult.joined`), with `run`'s own
+    `steps` and `joined`."""
+    earlier = _take(runs, run.joined)
+    return eqx.tree_at(lambda r: (r.steps, r.joined), earlier, (run.steps, run.joined))
 
 
 def within_reach(p: Float[Array, "6"], config: Config) -> Bool[Array, ""]:
@@ -708,11 +732,14 @@ def is_uncertain(
     return ~(jnp.degrees(std) <= config.thresholds.max_rotation_std_deg)
 
 
-def held_motion(problem: Problem, config: Config, p: Float[Array, "6"]) -> tuple[RotationHold, SlideHold]:
+def held_motion(
+    problem: Problem, config: Config, p: Float[Array, "6"], matches: FitMatches | None = None
+) -> tuple[RotationHold, SlideHold]:
     """[`face_holds`][jaxpose._fine.face_holds] of a fit p (frame n), the turn's axis and the
     translation's direction turned into the camera frame c (the frame of `Estimate.rotation`'s
-    rotation vector and of `Estimate.translation`)."""
-    hold, slide = face_holds(problem, config, p)
+    rotation vector and of `Estimate.translation`). `matches`: `_fine.fit_matches` at p, where
+    the caller has them."""
+    hold, slide = face_holds(problem, config, p, matches)
     axes = problem.frame.axes
     return RotationHold(hold.lever, axes @ hold.axis), SlideHold(slide.grip, axes @ slide.direction)
 
@@ -738,8 +765,10 @@ def _finish(
     p = jnp.where(finite, p, jnp.zeros_like(p))
     covariance, residual_scale, uncertain, hold, slide = None, None, jnp.asarray(False), None, None
     if fine is not None:
-        covariance, residual_scale = motion_uncertainty(problem, config, p)
-        hold, slide = held_motion(problem, config, p)
+        # One voxel search of the fit's matches for both the covariance and the holds.
+        matches = fit_matches(problem, config, p)
+        covariance, residual_scale = motion_uncertainty(problem, config, p, matches)
+        hold, slide = held_motion(problem, config, p, matches)
         uncertain = is_uncertain(covariance, config, spread) | barely_held(hold, slide, config)
     conditions = [
         (problem.status != 0, Status.degenerate),

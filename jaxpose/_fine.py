@@ -110,6 +110,14 @@ below the accuracy any registration of these clouds reaches (the sampling step i
 ROBUST_FLOOR = 5e-4
 """Smallest Cauchy scale c, metres: noise-free residuals do not shrink it to nothing."""
 
+JOIN_RADIUS = 0.1
+"""A fit that comes within this of an earlier converged fit's result, in every parameter
+(units of 1° and 1 cm: 0.1° and 1 mm, `PARAMETER_SCALE`), stops there and takes that result
+([`fine_refine`][]'s `joins`): it has entered the same minimum, and the rounds it would spend
+converging to it again cost as much as the earlier fit's last rounds. Minima that the data
+tell apart lie farther apart than this (the realistic benchmark's closest distinct fits of one
+pair were 0.76° apart)."""
+
 
 class FineCloud(eqx.Module):
     """Previous points near the cutting planes with their surface planes (frame n, metres).
@@ -197,6 +205,9 @@ class FineResult(eqx.Module):
     - `conflict`: the share of both clouds' points that the fit puts where the other view saw
       through (`jaxpose._estimate.free_space_conflict`); NaN where not judged: `fine_refine`
       leaves it so, `jaxpose._estimate.fine_passes` fills it in for each live run.
+    - `joined`: the row of `fine_refine`'s `joins` whose result this fit reached
+      (`JOIN_RADIUS`) and stopped at, −1 where it ran to its own end; `fine_passes` then
+      gives it that earlier fit's result.
     """
 
     params: Float[Array, "6"]
@@ -207,6 +218,7 @@ class FineResult(eqx.Module):
     planar_rms: Float[Array, ""]
     used: Int[Array, ""]
     conflict: Float[Array, ""]
+    joined: Int[Array, ""]
 
 
 def slab_distance(points: Float[Array, "3 N"], planes, d) -> Float[Array, " N"]:
@@ -785,7 +797,30 @@ def select_current(
     return problem.curr[:, idx], live
 
 
-def fine_least_squares(problem, config: Config, p: Float[Array, "6"]) -> tuple[Float[Array, ""], Float[Array, "6 6"]]:
+class FitMatches(NamedTuple):
+    """The matches of a fine-stage result p that its covariance and its holds read
+    ([`fit_matches`][]): the raw current points `points` (frame n, SoA, `(3, S)`), their
+    nearest previous points and planes `matched` and which are inliers `weight`."""
+
+    points: Float[Array, "3 S"]
+    matched: "Matches"
+    weight: Bool[Array, " S"]
+
+
+def fit_matches(problem, config: Config, p: Float[Array, "6"]) -> FitMatches:
+    """The raw current points (`select_current` without smoothing) matched to the previous
+    side at p (frame n): one voxel search, shared by [`fine_least_squares`][] and
+    [`face_holds`][]. The raw points, not the smoothed ones: smoothing correlates neighbouring
+    residuals and shrinks σ̂ below the range noise, which `COVARIANCE_SCALE` was calibrated on."""
+    p = jnp.asarray(p, problem.d.dtype)
+    b, live = select_current(problem, config, p, smooth=False)
+    matched, weight, _ = _correspond(p, b, live, problem.fine, config.fine.inlier)
+    return FitMatches(b, matched, weight)
+
+
+def fine_least_squares(
+    problem, config: Config, p: Float[Array, "6"], matches: FitMatches | None = None
+) -> tuple[Float[Array, ""], Float[Array, "6 6"]]:
     """The two factors of the least-squares covariance of a fine-stage result p (frame n):
     σ̂ (metres), the residual scale, and (JᵀJ)⁻¹ (the covariance of p, radians and metres, per
     square metre of residual variance), with J the Jacobian of the matched point-to-plane residuals at p (the
@@ -793,12 +828,9 @@ def fine_least_squares(problem, config: Config, p: Float[Array, "6"]) -> tuple[F
     σ̂ is at least `SIGMA_FLOOR`, so that a noise-free view gives a positive definite
     covariance. The residuals are those of the raw current points (`CurrentSide.points`),
     also where the fit used the smoothed ones: the covariance of a fit to smoothed points is
-    at most this one."""
+    at most this one. `matches`: [`fit_matches`][] at p, where the caller has them."""
     p = jnp.asarray(p, problem.d.dtype)
-    # The raw current points, not the smoothed ones: smoothing correlates neighbouring
-    # residuals and shrinks σ̂ below the range noise, which `COVARIANCE_SCALE` was calibrated on.
-    b, live = select_current(problem, config, p, smooth=False)
-    matched, weight, _ = _correspond(p, b, live, problem.fine, config.fine.inlier)
+    b, matched, weight = fit_matches(problem, config, p) if matches is None else matches
     J = jax.jacfwd(_residuals)(p, b, matched, weight)
     r = _residuals(p, b, matched, weight)
     sigma2 = jnp.maximum(jnp.sum(r**2) / jnp.maximum(jnp.sum(weight) - 6, 1), SIGMA_FLOOR**2)
@@ -846,7 +878,9 @@ class SlideHold(NamedTuple):
     direction: Float[Array, "3"]
 
 
-def face_holds(problem, config: Config, p: Float[Array, "6"]) -> tuple[RotationHold, SlideHold]:
+def face_holds(
+    problem, config: Config, p: Float[Array, "6"], matches: FitMatches | None = None
+) -> tuple[RotationHold, SlideHold]:
     """The turn and the translation that the matched faces of a fine-stage result p (frame n,
     radians and metres) hold least firmly, and how firmly ([`RotationHold`][],
     [`SlideHold`][]).
@@ -872,10 +906,10 @@ def face_holds(problem, config: Config, p: Float[Array, "6"]) -> tuple[RotationH
     about the face's normal look held. A turn the faces do not hold is left to the outline
     and to where the fit started (a single flat face seen head-on: the turn about its normal;
     a bare cylinder: the turn about its axis). Geometric stability in the sense of Gelfand et
-    al. (2003), for the fit's own matches."""
+    al. (2003), for the fit's own matches ([`fit_matches`][] at p, or `matches` where the
+    caller has them)."""
     p = jnp.asarray(p, problem.d.dtype)
-    b, live = select_current(problem, config, p, smooth=False)
-    matched, weight, _ = _correspond(p, b, live, problem.fine, config.fine.inlier)
+    b, matched, weight = fit_matches(problem, config, p) if matches is None else matches
     q, n = _moved(p, b), matched.normals
     w = (weight & matched.planar).astype(q.dtype)
     count = jnp.maximum(jnp.sum(w), 1.0)
@@ -1009,6 +1043,7 @@ def fine_refine(
     smooth=True,
     two_way=True,
     combine=True,
+    joins: Float[Array, "k 6"] | None = None,
 ) -> FineResult:
     """Minimise the point-to-plane residuals of the selected current points from `start` (frame n).
     See the module docstring. Pure and jittable.
@@ -1034,7 +1069,9 @@ def fine_refine(
     `FineStage.symmetric`), also fit the previous points to them ([`back_residuals`][]).
     `combine` (a boolean, possibly traced): with `FineStage.residual` "plane_to_plane", fit
     plane-to-plane ([`combined_planes`][]); else, or where false (the noise-free polish),
-    point-to-plane.
+    point-to-plane. `joins`: p (frame n) of earlier converged fits, NaN rows where none; a
+    round that ends within `JOIN_RADIUS` of one stops the fit, and `FineResult.joined` says
+    which (the caller takes that fit's result, `jaxpose._estimate.fine_passes`).
     """
     dtype = problem.d.dtype
     start = jnp.asarray(start, dtype)
@@ -1062,7 +1099,7 @@ def fine_refine(
         # last: each point's last match; q_exact, d_exact: where each point last got an exact
         # match (a voxel search, or a certified round's) and its distance (inf: the search found
         # none in reach); finishing: the fit's finish phase.
-        y, _, rounds, steps, _, lasts, back_lasts = state
+        y, _, rounds, steps, _, lasts, back_lasts, _ = state
         last, q_exact, d_exact, finishing = lasts
         q = _moved(y * scale, b)
         shift = jnp.max(jnp.where(live, jnp.sum((q - q_exact) ** 2, axis=0), 0.0))
@@ -1107,11 +1144,12 @@ def fine_refine(
         d_exact = jnp.where(exact, dist, d_exact)
         lasts = (index, q_exact, d_exact, finishing | (small & graph_round))
         steps = steps + sol.stats["num_steps"]
-        return y + step, settled, rounds + 1, steps, (matched, weight, near), lasts, back_lasts
+        joined = joined_fit(y + step, joins)
+        return y + step, settled, rounds + 1, steps, (matched, weight, near), lasts, back_lasts, joined
 
     def more(state):
-        _, settled, rounds, _, _, _, _ = state
-        return active & ~settled & (rounds < config.fine.rounds)
+        _, settled, rounds, _, _, _, _, joined = state
+        return active & ~settled & (rounds < config.fine.rounds) & (joined < 0)
 
     # Placeholder matches, of the right structure: an active run replaces them in its first round;
     # an inactive one keeps them, with weight 0 everywhere.
@@ -1121,8 +1159,10 @@ def fine_refine(
     lasts = (jnp.zeros(S, jnp.int32), jnp.zeros_like(b), jnp.full(S, jnp.inf, dtype), jnp.asarray(False))
     B = queries.shape[1]
     back_lasts = (jnp.zeros(B, jnp.int32), jnp.zeros_like(queries), jnp.full(B, jnp.inf, dtype))
-    state = (start / scale, jnp.asarray(False), jnp.asarray(0), jnp.asarray(0), unmatched, lasts, back_lasts)
-    y, settled, _, steps, (matched, weight, near), _, _ = jax.lax.while_loop(more, one_round, state)
+    joins = jnp.zeros((0, 6), dtype) if joins is None else jnp.asarray(joins, dtype) / scale[None]
+    no_join = jnp.asarray(-1, jnp.int32)
+    state = (start / scale, jnp.asarray(False), jnp.asarray(0), jnp.asarray(0), unmatched, lasts, back_lasts, no_join)
+    y, settled, _, steps, (matched, weight, near), _, _, joined = jax.lax.while_loop(more, one_round, state)
     p = y * scale
     # The inlier fraction and RMS use the last round's matches (made where that round started,
     # within ROUND_TOL of p when converged) rather than a fresh nearest-neighbour search at p,
@@ -1139,7 +1179,17 @@ def fine_refine(
         planar_rms=_weighted_rms(r, w * matched.planar),
         used=used.astype(jnp.int32),
         conflict=jnp.full((), jnp.nan, dtype),
+        joined=joined,
     )
+
+
+def joined_fit(y: Float[Array, "6"], joins: Float[Array, "k 6"]) -> Int[Array, ""]:
+    """The first row of `joins` within `JOIN_RADIUS` of y in every parameter (both in the
+    solver's units, `PARAMETER_SCALE`), −1 where none is (NaN rows never are)."""
+    if joins.shape[0] == 0:
+        return jnp.asarray(-1, jnp.int32)
+    near = jnp.all(jnp.abs(joins - y[None]) <= JOIN_RADIUS, axis=1)
+    return jnp.where(jnp.any(near), jnp.argmax(near), -1).astype(jnp.int32)
 
 
 __all__ = [
@@ -1158,6 +1208,8 @@ __all__ = [
     "fits_two_way",
     "smallest_eigen",
     "fine_covariance",
+    "FitMatches",
+    "fit_matches",
     "fine_least_squares",
     "RotationHold",
     "SlideHold",

@@ -15,7 +15,7 @@ import jaxlie
 from jaxtyping import Array, ArrayLike, Float
 
 from ._config import COVARIANCE_SCALE, Config
-from ._fine import SurfaceProblem, fine_least_squares
+from ._fine import FitMatches, SurfaceProblem, fine_least_squares
 from ._objective import soft_score
 from ._poses import PARAMETER_SCALE, motion_from_displacement
 from ._problem import Problem
@@ -52,9 +52,10 @@ def covariance_factor(config: Config, sigma: Float[ArrayLike, ""]) -> Float[Arra
 
 
 def motion_uncertainty(
-    problem: SurfaceProblem, config: Config, p: Float[Array, "6"]
+    problem: SurfaceProblem, config: Config, p: Float[Array, "6"], matches: FitMatches | None = None
 ) -> tuple[Float[Array, "6 6"], Float[Array, ""]]:
-    """[`motion_covariance`][] and the residual scale σ̂ (metres) it was scaled with."""
+    """[`motion_covariance`][] and the residual scale σ̂ (metres) it was scaled with.
+    `matches`: `jaxpose._fine.fit_matches` at p, where the caller has them."""
     R_hat, _ = motion_from_displacement(problem.frame.origin, problem.frame.axes, p)
 
     def motion(q):
@@ -62,7 +63,7 @@ def motion_uncertainty(
         return jnp.concatenate([jaxlie.SO3.from_matrix(R @ R_hat.T).log(), t])
 
     J = jax.jacfwd(motion)(p)
-    sigma, unit = fine_least_squares(problem, config, p)
+    sigma, unit = fine_least_squares(problem, config, p, matches)
     cov = covariance_factor(config, sigma) * sigma**2 * unit
     out = J @ cov @ J.T
     return (out + out.T) / 2, sigma

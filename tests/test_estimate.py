@@ -305,6 +305,7 @@ def _fine_result(angles_deg, inliers, rms=0.003, conflict=np.nan):
         jnp.asarray(rms),
         jnp.asarray(900),
         jnp.asarray(conflict, jnp.float32),
+        jnp.asarray(-1),
     )
 
 

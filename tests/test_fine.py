@@ -915,8 +915,7 @@ def test_the_fine_passes_are_the_separate_runs(paper_clouds):
     apart = jax.jit(run_on, static_argnums=2)
     separate = [apart(starts[i], problem.fine) for i in range(2)]
     for i, run in enumerate(separate):
-        np.testing.assert_allclose(np.asarray(runs.params[i]), np.asarray(run.params), atol=1e-9)
-        assert int(runs.steps[i]) == int(run.steps)
+        assert_pass_is_the_run(runs, i, run)
     best = better_fine(*separate)
     assert float(best.planar_rms) < EXACT_RMS
     polish = apart(best.params, exact_surface(problem.fine), False)  # the raw current points
@@ -945,6 +944,63 @@ def test_the_turned_passes_start_from_the_best_fit_turned(paper_clouds):
     best = better_fine(one(starts[0]), one(starts[1]))
     centre = symmetry_centre(problem.fine.points, problem.fine.normals, problem.fine.valid, turns[0])
     separate = one(turned(best.params, turns[0], centre))
-    np.testing.assert_allclose(np.asarray(runs.params[2]), np.asarray(separate.params), atol=1e-9)
-    assert int(runs.steps[2]) == int(separate.steps) > 0
-    assert int(runs.steps[3]) == 0 and float(runs.inliers[3]) == 0.0
+    assert_pass_is_the_run(runs, 2, separate)
+    assert int(runs.steps[2]) > 0
+    assert int(runs.steps[3]) == 0 and float(runs.inliers[3]) == 0.0 and int(runs.joined[3]) == -1
+
+
+def assert_pass_is_the_run(runs, i: int, run) -> None:
+    """Pass i of `fine_passes` is the separate `run`; or, where it joined an earlier pass
+    (`FineResult.joined`), it holds that pass's result, to which the separate run converged
+    too, in fewer Gauss–Newton steps than the separate run took."""
+    j = int(runs.joined[i])
+    if j < 0:
+        np.testing.assert_allclose(np.asarray(runs.params[i]), np.asarray(run.params), atol=1e-9)
+        assert int(runs.steps[i]) == int(run.steps)
+        return
+    assert 0 <= j < i and bool(runs.converged[j])
+    np.testing.assert_array_equal(np.asarray(runs.params[i]), np.asarray(runs.params[j]))
+    assert float(runs.inliers[i]) == float(runs.inliers[j])
+    gap = np.abs(np.asarray(run.params) - np.asarray(runs.params[j])) / np.asarray(jp_fine.PARAMETER_SCALE)
+    assert np.max(gap) < 1e-3, gap  # the same minimum: within 0.001° and 0.01 mm
+    assert int(runs.steps[i]) < int(run.steps)
+
+
+def test_a_fit_that_reaches_an_earlier_fit_stops_there():
+    """`fine_refine`'s `joins`: a fit that comes within `JOIN_RADIUS` of an earlier converged
+    fit stops and says which (`FineResult.joined`); NaN rows and rows farther off are never
+    joined; without `joins` the fit runs to its own end."""
+    from jaxpose._fine import JOIN_RADIUS, joined_fit
+
+    y = jnp.asarray([1.0, -2.0, 0.5, 3.0, 0.0, -1.0])
+    far = y.at[4].add(1.5 * JOIN_RADIUS)
+    near = y + 0.5 * JOIN_RADIUS
+    assert int(joined_fit(y, jnp.stack([far, jnp.full(6, jnp.nan), near]))) == 2
+    assert int(joined_fit(y, jnp.stack([far, jnp.full(6, jnp.nan)]))) == -1
+    assert int(joined_fit(y, jnp.zeros((0, 6)))) == -1
+
+
+def test_a_fit_from_rest_joins_the_fit_of_the_same_minimum():
+    """On a noisy N5 pair the fit from rest, given the fit from near the truth as a join,
+    stops inside `JOIN_RADIUS` of it, after fewer steps than it takes alone, and alone it
+    converges to the same minimum."""
+    from jaxpose._fine import JOIN_RADIUS, PARAMETER_SCALE
+
+    noisy = jp.Camera.camcube2(noise_sigma=0.01)
+    target, keys = jp.targets.n5(), jax.random.split(jax.random.key(4))
+    R1, R2 = paper_rotation("previous"), paper_rotation("variant2")
+    prev = jp.simulate(noisy, target, R1, jnp.asarray(T_PAPER), key=keys[0])
+    curr = jp.simulate(noisy, target, R2, jnp.asarray(T_PAPER), key=keys[1])
+    config = sized_config(prev, curr, jp.Config())
+    problem = jp.Problem.build(prev, curr, config)
+    truth = jp.true_displacement(problem.frame, R1, T_PAPER, R2, T_PAPER)
+    run = jax.jit(lambda start, joins: fine_refine(problem, config, start, joins=joins))
+    first = run(truth + 0.003, jnp.full((1, 6), jnp.nan))
+    alone = run(jnp.zeros(6), jnp.full((1, 6), jnp.nan))
+    joining = run(jnp.zeros(6), first.params[None])
+    scale = np.asarray(PARAMETER_SCALE)
+    assert bool(first.converged) and bool(alone.converged) and int(alone.joined) == -1
+    assert np.max(np.abs(np.asarray(alone.params - first.params)) / scale) < JOIN_RADIUS
+    assert int(joining.joined) == 0
+    assert np.max(np.abs(np.asarray(joining.params - first.params)) / scale) <= JOIN_RADIUS
+    assert int(joining.steps) < int(alone.steps)
