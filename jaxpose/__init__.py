@@ -62,6 +62,7 @@ from ._poses import (
     true_displacement as true_displacement,
 )
 from ._problem import Problem as Problem
+from ._programs import disable_compile_cache as disable_compile_cache
 from ._programs import enable_compile_cache as enable_compile_cache
 from ._rotations import angles as angles
 from ._rotations import rotation as rotation
@@ -104,6 +105,7 @@ __all__ = [
     "angles",
     "body_model",
     "displacement_from_motion",
+    "disable_compile_cache",
     "enable_compile_cache",
     "estimate",
     "estimate_batch",

@@ -304,8 +304,9 @@ def _compiled_angles():
 
 
 def _enable_compile_cache() -> None:
-    """Persist XLA's compilations across CLI runs (`jaxpose.enable_compile_cache`; imported here,
-    not at the top, so that the CLI's help does not import JAX)."""
+    """Keep compiled programs across CLI runs, jaxpose's and the rest of JAX's
+    (`jaxpose.enable_compile_cache`; `JAXPOSE_CACHE=off` keeps none). Imported here, not at the
+    top, so that the CLI's help does not import JAX."""
     from ._programs import enable_compile_cache
 
     enable_compile_cache()

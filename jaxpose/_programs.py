@@ -1,4 +1,4 @@
-"""A bounded in-memory cache of compiled programs for the public path.
+"""Compiled programs of the public path: a bounded cache in memory, and files on disk.
 
 Each compiled XLA:CPU program keeps a few thousand memory mappings while it lives, and Linux
 allows 65,530 per process: a session that met a few dozen capacity buckets through
@@ -6,11 +6,14 @@ allows 65,530 per process: a session that met a few dozen capacity buckets throu
 compile ahead of time (`jax.jit(…).lower(…).compile()`) and keep the `PROGRAMS` most
 recently used programs; an evicted one is freed.
 
-With `enable_compile_cache` (the CLI enables it) a program is also kept on disk twice: its
-StableHLO as a `jax.export` file, and XLA's compiled code in JAX's persistent compilation
-cache. A new process deserialises the first instead of tracing and lowering the Python
-function again (seconds for `estimate`'s program), and compiling it is then a load from the
-second.
+Every compiled program is also kept on disk by default, as XLA's serialised executable
+(`jax.experimental.serialize_executable`), in `$JAXPOSE_CACHE/programs` (default
+`~/.cache/jaxpose/programs`): a new process loads it instead of tracing, lowering and
+compiling the Python functions again (about 2 s instead of 20 s for `estimate`'s program on a
+2-core CPU). Nothing else in the process is touched: JAX's own configuration stays as the user
+set it. `JAXPOSE_CACHE=off` (or `disable_compile_cache()`) keeps nothing on disk;
+`enable_compile_cache(folder)` chooses the folder and also turns on JAX's persistent
+compilation cache there, for the rest of the process's jitted code (the CLI calls it).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import functools
 import hashlib
 import os
 import pickle
+import platform
 import time
 import weakref
 from collections import OrderedDict
@@ -27,6 +31,7 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+from jax.experimental import serialize_executable
 
 PROGRAMS = 4
 """Compiled programs kept in memory per cached function (≈ 3,000 mappings each for
@@ -52,7 +57,7 @@ def memory_mappings() -> int:
 
 def release_all() -> None:
     """Drop JAX's in-memory caches and every `BoundedJit`'s programs: they recompile on their
-    next use (from the persistent compilation cache where one is set)."""
+    next use (or load from their files)."""
     jax.clear_caches()
     clear_programs()
 
@@ -72,37 +77,63 @@ def _signature(static, dynamic) -> tuple:
 
 
 MIN_COMPILE_S = 0.1
-"""The shortest compilation that `enable_compile_cache` keeps on disk: the sizing program at
-the public boundary compiles in under a second, and a new process would otherwise compile
-it again before its first estimate."""
+"""The shortest compilation that `enable_compile_cache` keeps in JAX's persistent cache."""
 
-_EXPORTS: list[Path] = []
-"""The folder of exported programs, once `enable_compile_cache` set one."""
+MAX_CACHE_BYTES = 2 * 2**30
+"""The most bytes of program files kept in a folder: after a program is saved, the least
+recently used files (by modification time; a load touches its file) are deleted down to
+this. `estimate`'s program is about 12 MB, so about 170 programs stay."""
+
+OFF = frozenset({"", "0", "off", "false", "no", "none"})
+"""Values of `$JAXPOSE_CACHE` (any case) that keep nothing on disk."""
+
+_CHOICE: list[Path | None] = []
+"""The folder chosen in this process (`enable_compile_cache`; None after
+`disable_compile_cache`); empty: the default, read from `$JAXPOSE_CACHE` at each compile."""
 
 
-def enable_compile_cache(folder: str | Path | None = None) -> Path:
-    """Keep the public path's programs on disk, so that a new process starts `estimate` and
-    `track` in seconds instead of compiling them (first estimate ≈ 3 s after the call on a
-    2-core CPU, against ≈ 25 s cold). `folder` (default `$JAXPOSE_CACHE`, else
-    `~/.cache/jaxpose`) gets `programs/`, each `BoundedJit` program exported as StableHLO
-    (`jax.export`), and `xla/`, JAX's persistent compilation cache (compilations of
-    `MIN_COMPILE_S` and longer: this process's other jitted code is cached there too). A
-    program's file name hashes everything its tracing depends on: the function, the static
-    arguments, the argument shapes and dtypes, JAX's version and flags, and jaxpose's own
-    source, so that a changed program is never loaded. Returns `folder`. Files are never
-    deleted; remove the folder to reclaim the space."""
+def default_folder() -> Path | None:
+    """The cache folder of the environment: `$JAXPOSE_CACHE`, `~/.cache/jaxpose` where it is
+    not set, None where it is one of `OFF`."""
+    value = os.environ.get("JAXPOSE_CACHE")
+    if value is None:
+        return Path.home() / ".cache" / "jaxpose"
+    return None if value.strip().lower() in OFF else Path(value).expanduser()
+
+
+def program_folder() -> Path | None:
+    """Where compiled programs are kept now (`<folder>/programs`), or None for nowhere."""
+    folder = _CHOICE[0] if _CHOICE else default_folder()
+    return None if folder is None else folder / "programs"
+
+
+def enable_compile_cache(folder: str | Path | None = None) -> Path | None:
+    """Keep compiled programs in `folder` (default: `$JAXPOSE_CACHE`, else `~/.cache/jaxpose`),
+    and turn on JAX's persistent compilation cache in `folder/xla` for the rest of the
+    process's jitted code (compilations of `MIN_COMPILE_S` and longer). jaxpose's own programs
+    go to `folder/programs` even without this call (see the module docstring); the CLI calls
+    it. Returns the folder, or None where `folder` is None and `$JAXPOSE_CACHE` is off (then
+    nothing is turned on). A program's file name hashes everything it depends on: the
+    function, the static arguments, the argument shapes and dtypes, JAX's version and flags,
+    the devices and the CPU, and jaxpose's own source, so that a changed program is never
+    loaded. Files beyond `MAX_CACHE_BYTES` are deleted, least recently used first; remove the
+    folder to reclaim all the space."""
     if folder is None:
-        folder = os.environ.get("JAXPOSE_CACHE", Path.home() / ".cache" / "jaxpose")
+        folder = default_folder()
+        if folder is None:
+            _CHOICE[:] = [None]
+            return None
     folder = Path(folder).expanduser()
     jax.config.update("jax_compilation_cache_dir", str(folder / "xla"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_S)
-    _EXPORTS[:] = [folder / "programs"]
+    _CHOICE[:] = [folder]
     return folder
 
 
-def disable_program_files() -> None:
-    """Stop keeping exported programs on disk (JAX's compilation cache stays as set)."""
-    _EXPORTS.clear()
+def disable_compile_cache() -> None:
+    """Keep no compiled program on disk in this process, whatever `$JAXPOSE_CACHE` says (JAX's
+    own persistent cache stays as it is)."""
+    _CHOICE[:] = [None]
 
 
 @functools.cache
@@ -117,17 +148,39 @@ def source_digest() -> str:
     return digest.hexdigest()
 
 
+@functools.cache
+def _cpu_identity() -> str:
+    """The CPU's model and instruction-set flags (Linux's /proc/cpuinfo, else the platform's
+    description): XLA:CPU compiles for the host's instruction set, so a program compiled on one
+    CPU must never run on another (a home folder shared between machines)."""
+    try:
+        with open("/proc/cpuinfo") as info:
+            lines = [line.strip() for line in info if line.startswith(("model name", "flags", "Features"))]
+        return "\n".join(dict.fromkeys(lines))
+    except OSError:
+        return f"{platform.machine()} {platform.processor()}"
+
+
+def machine_identity() -> tuple:
+    """What a compiled program depends on beyond its source: JAX's and jaxlib's versions, the
+    devices, the CPU (`_cpu_identity`) and `XLA_FLAGS`."""
+    from jaxlib import version as jaxlib_version
+
+    devices = tuple((d.platform, d.device_kind) for d in jax.local_devices())
+    return jax.__version__, jaxlib_version.__version__, devices, _cpu_identity(), os.environ.get("XLA_FLAGS", "")
+
+
 def program_name(fn: Callable, static, intree, leaves) -> str:
-    """The file name of `fn`'s program for these arguments: a hash of the function, the
-    pickled static arguments, the argument tree, shapes and dtypes, JAX's version, backend and
-    tracing flags (x64, matmul precision, rank and dtype promotion), and jaxpose's source.
-    Raises if the static arguments cannot be pickled."""
+    """The file name (without suffix) of `fn`'s program for these arguments: a hash of the
+    function, the pickled static arguments, the argument tree, shapes and dtypes, the backend
+    and tracing flags (x64, matmul precision, rank and dtype promotion), `machine_identity`,
+    and jaxpose's source. Raises if the static arguments cannot be pickled."""
     digest = hashlib.sha256()
     parts = (
         fn.__module__,
         fn.__qualname__,
         source_digest(),
-        jax.__version__,
+        machine_identity(),
         jax.default_backend(),
         bool(jax.config.jax_enable_x64),
         str(jax.config.jax_default_matmul_precision),
@@ -141,8 +194,12 @@ def program_name(fn: Callable, static, intree, leaves) -> str:
     return f"{fn.__name__.strip('_')}-{digest.hexdigest()[:32]}"
 
 
-def _export(fn: Callable, static, intree, leaves):
-    """Trace and lower `fn` on flat arguments: the `jax.export.Exported` and the output tree."""
+SUFFIX = ".xla"
+
+
+def _compile_flat(fn: Callable, static, intree, leaves):
+    """`fn` traced, lowered and compiled on flat arguments: the compiled program (a callable of
+    the leaves, returning the output's leaves) and the output tree."""
     trees = []
 
     def flat(*flat_args):
@@ -151,60 +208,77 @@ def _export(fn: Callable, static, intree, leaves):
         trees.append(out_tree)
         return out_leaves
 
-    avals = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
-    exported = jax.export.export(jax.jit(flat))(*avals)
-    return exported, trees[0]
-
-
-def _sibling(path: Path, suffix: str) -> Path:
-    return path.parent / (path.name + suffix)
+    compiled = jax.jit(flat).lower(*leaves).compile()
+    return compiled, trees[0]
 
 
 def _load(path: Path):
-    """The exported program and output tree saved at `path`, or None if it cannot be read."""
+    """The compiled program and output tree saved at `path`, or None if it cannot be read or
+    loaded. A load touches the file (least recently used files are deleted first)."""
     try:
-        exported = jax.export.deserialize(bytearray(_sibling(path, ".stablehlo").read_bytes()))
-        skeleton = pickle.loads(_sibling(path, ".tree").read_bytes())
-    except Exception:  # a missing, partial or incompatible file: trace again
+        payload, in_tree, flat_out, skeleton = pickle.loads(path.read_bytes())
+        compiled = serialize_executable.deserialize_and_load(payload, in_tree, flat_out)
+    except Exception:  # a missing, partial or incompatible file: compile again
         return None
-    return exported, jax.tree.structure(skeleton)
+    try:
+        os.utime(path)
+    except OSError:
+        pass
+    return compiled, jax.tree.structure(skeleton)
 
 
-def _save(path: Path, exported, out_tree) -> None:
-    """Write the program and its output tree (as a pytree of zeros), each atomically."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+def _save(path: Path, compiled, out_tree) -> None:
+    """Write the serialised program and its output tree (as a pytree of zeros) atomically, then
+    trim the folder to `MAX_CACHE_BYTES`. A program that cannot be serialised (host callbacks)
+    or a folder that cannot be written keeps no file."""
+    try:
+        payload, in_tree, flat_out = serialize_executable.serialize(compiled)
+    except Exception:  # what XLA cannot serialise: the program still runs
+        return
     skeleton = jax.tree.unflatten(out_tree, [0] * out_tree.num_leaves)
-    for suffix, data in ((".stablehlo", exported.serialize()), (".tree", pickle.dumps(skeleton))):
-        partial = _sibling(path, f"{suffix}.{os.getpid()}.partial")
-        partial.write_bytes(data)
-        os.replace(partial, _sibling(path, suffix))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.parent / f"{path.name}.{os.getpid()}.partial"
+        partial.write_bytes(pickle.dumps((payload, in_tree, flat_out, skeleton)))
+        os.replace(partial, path)
+        trim(path.parent)
+    except OSError:  # a folder that cannot be written: the program still runs
+        pass
 
 
-def exported_program(fn: Callable, static, dynamic, folder: Path) -> Callable | None:
+def trim(folder: Path, limit: int = MAX_CACHE_BYTES) -> None:
+    """Delete the least recently used program files of `folder` until they hold at most
+    `limit` bytes (the newest file always stays)."""
+    files = []
+    for path in folder.glob(f"*{SUFFIX}"):
+        try:
+            stat = path.stat()
+        except OSError:  # deleted meanwhile by another process
+            continue
+        files.append((stat.st_mtime, stat.st_size, path))
+    files.sort()
+    total = sum(size for _, size, _ in files)
+    for _, size, path in files[:-1]:
+        if total <= limit:
+            break
+        path.unlink(missing_ok=True)
+        total -= size
+
+
+def stored_program(fn: Callable, static, dynamic, folder: Path) -> Callable | None:
     """`fn` compiled for these arguments through a program file in `folder`: loaded if it is
-    there, else traced, exported and saved. Returns a callable of `dynamic`, or None where
-    the program cannot go through a file (static arguments that pickle cannot write, what
-    `jax.export` refuses, such as host callbacks): the caller then compiles it directly."""
+    there, else compiled and saved. Returns a callable of `dynamic`, or None where the static
+    arguments cannot be pickled (no file name): the caller then compiles it directly."""
     leaves, intree = jax.tree.flatten(dynamic)
     try:
-        path = folder / program_name(fn, static, intree, leaves)
+        path = folder / (program_name(fn, static, intree, leaves) + SUFFIX)
     except Exception:  # static arguments that pickle cannot write
         return None
     loaded = _load(path)
     if loaded is None:
-        try:
-            loaded = _export(fn, static, intree, leaves)
-        except Exception:  # what jax.export refuses (host callbacks, say): the jit path
-            return None
-        try:
-            _save(path, *loaded)
-        except OSError:  # a folder that cannot be written: the program still runs
-            pass
-    exported, out_tree = loaded
-    try:
-        compiled = jax.jit(exported.call).lower(*leaves).compile()
-    except Exception:  # a program file this JAX cannot compile: the jit path
-        return None
+        loaded = _compile_flat(fn, static, intree, leaves)
+        _save(path, *loaded)
+    compiled, out_tree = loaded
 
     def program(dyn):
         return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(dyn)))
@@ -215,8 +289,9 @@ def exported_program(fn: Callable, static, dynamic, folder: Path) -> Callable | 
 class BoundedJit:
     """`fn` compiled once per argument signature (shapes, dtypes and non-array leaves, as
     `eqx.filter_jit`), keeping the `size` most recently used programs. `last_compile_s` is
-    the wall time (s) of the last compile (lowering included), for benchmarks that report
-    compile time apart from run time."""
+    the wall time (s) of the last compile (tracing and lowering included; or of the load,
+    where the program came from a file), for benchmarks that report compile time apart from
+    run time."""
 
     def __init__(self, fn: Callable, size: int = PROGRAMS):
         self.fn, self.size = fn, size
@@ -246,10 +321,11 @@ class BoundedJit:
         return program(dynamic)
 
     def _compile(self, static, dynamic) -> Callable:
-        """The compiled program: through a program file when `enable_compile_cache` set a
-        folder and the program exports, else traced, lowered and compiled here."""
-        if _EXPORTS:
-            program = exported_program(self.fn, static, dynamic, _EXPORTS[0])
+        """The compiled program: through a program file where a folder is set
+        (`program_folder`), else traced, lowered and compiled here."""
+        folder = program_folder()
+        if folder is not None:
+            program = stored_program(self.fn, static, dynamic, folder)
             if program is not None:
                 return program
         return jax.jit(lambda dyn: self.fn(*eqx.combine(dyn, static))).lower(dynamic).compile()
@@ -264,8 +340,10 @@ __all__ = [
     "PROGRAMS",
     "BoundedJit",
     "clear_programs",
-    "disable_program_files",
+    "default_folder",
+    "disable_compile_cache",
     "enable_compile_cache",
     "memory_mappings",
+    "program_folder",
     "release_all",
 ]

@@ -13,17 +13,17 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 # The package's annotations are checked at run time (jaxtyping + beartype, pyproject's addopts).
 # One persistent compilation cache per test session, empty at its start, so the notebooks'
-# kernels (which inherit the environment) reuse each other's compiles.
-# The CLI's `enable_compile_cache` (tests invoke the CLI in process) keeps its program files and
-# XLA cache in a folder of the test session's, not in the user's ~/.cache/jaxpose. The process
-# that makes the folders (pytest-xdist's controller; its workers inherit the variables) removes
-# them when the session ends.
+# kernels (which inherit the environment) reuse each other's compiles. jaxpose's own program
+# files (on by default, `jaxpose._programs`) are off unless a test turns them on: each would
+# add a serialisation and a file of megabytes to every compile of the session. The tests of
+# the program files and of the CLI set `JAXPOSE_CACHE` to a folder of their own. The process
+# that makes the XLA folder (pytest-xdist's controller; its workers inherit the variables)
+# removes it when the session ends.
 _OWN_FOLDERS = []
-_TEST_FOLDERS = {"JAX_COMPILATION_CACHE_DIR": "jaxpose-test-xla-", "JAXPOSE_CACHE": "jaxpose-test-cache-"}
-for _variable, _prefix in _TEST_FOLDERS.items():
-    if _variable not in os.environ:
-        os.environ[_variable] = tempfile.mkdtemp(prefix=_prefix)
-        _OWN_FOLDERS.append(os.environ[_variable])
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxpose-test-xla-")
+    _OWN_FOLDERS.append(os.environ["JAX_COMPILATION_CACHE_DIR"])
+os.environ.setdefault("JAXPOSE_CACHE", "off")
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
@@ -96,16 +96,17 @@ def release_compiled_programs():
 
 @pytest.fixture(autouse=True)
 def restore_compile_cache():
-    """The CLI's commands, invoked in process by the tests, turn on the compile cache and its
-    program files (`enable_compile_cache`); each test's successors start as they would have
-    without it, so which tests run through program files does not depend on the scheduling."""
+    """The CLI's commands, invoked in process by the tests, choose a folder for the program
+    files and turn on JAX's compilation cache (`enable_compile_cache`); each test's successors
+    start as they would have without it, so which tests run through program files does not
+    depend on the scheduling."""
     before = (
-        list(_programs._EXPORTS),
+        list(_programs._CHOICE),
         jax.config.jax_compilation_cache_dir,
         jax.config.jax_persistent_cache_min_compile_time_secs,
     )
     yield
-    _programs._EXPORTS[:] = before[0]
+    _programs._CHOICE[:] = before[0]
     jax.config.update("jax_compilation_cache_dir", before[1])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", before[2])
 

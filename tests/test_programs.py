@@ -1,5 +1,8 @@
 """The public path's bounded cache of compiled programs (jaxpose._programs)."""
 
+import os
+from pathlib import Path
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -8,7 +11,8 @@ import pytest
 
 import jaxpose
 import jaxpose as jp
-from jaxpose._programs import BoundedJit, clear_programs, disable_program_files, memory_mappings, program_name
+from jaxpose import _programs
+from jaxpose._programs import BoundedJit, clear_programs, memory_mappings, program_folder, program_name, trim
 
 
 def _scaled_sum(x, scale: float):
@@ -42,7 +46,24 @@ def test_memory_mappings_are_counted_on_linux():
 def test_enable_compile_cache_sets_the_folders_and_the_threshold(program_files):
     assert jax.config.jax_compilation_cache_dir == str(program_files.parent / "xla")
     assert jax.config.jax_persistent_cache_min_compile_time_secs == jaxpose._programs.MIN_COMPILE_S
-    assert jaxpose._programs._EXPORTS == [program_files]
+    assert program_folder() == program_files
+
+
+def test_the_folder_follows_the_environment_until_chosen(monkeypatch, tmp_path):
+    monkeypatch.setattr(_programs, "_CHOICE", [])
+    monkeypatch.setenv("JAXPOSE_CACHE", str(tmp_path))
+    assert program_folder() == tmp_path / "programs"
+    for off in ("off", "OFF", "0", "none", ""):
+        monkeypatch.setenv("JAXPOSE_CACHE", off)
+        assert program_folder() is None
+        assert jp.enable_compile_cache() is None  # the environment's "off" holds for the CLI too
+        assert program_folder() is None
+        monkeypatch.setattr(_programs, "_CHOICE", [])
+    monkeypatch.delenv("JAXPOSE_CACHE")
+    assert program_folder() == Path.home() / ".cache" / "jaxpose" / "programs"
+    monkeypatch.setenv("JAXPOSE_CACHE", str(tmp_path))
+    jp.disable_compile_cache()
+    assert program_folder() is None
 
 
 class _Summary(eqx.Module):
@@ -62,21 +83,28 @@ def _summarise(x, scale: float) -> _Summary:
 
 @pytest.fixture
 def program_files(tmp_path):
-    """Program files in a fresh folder for the test; off again afterwards."""
-    before = jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs
+    """Program files in a fresh folder for the test; the process's choice and JAX's cache
+    restored afterwards (conftest's `restore_compile_cache`)."""
     jp.enable_compile_cache(tmp_path)
-    yield tmp_path / "programs"
-    disable_program_files()
-    jax.config.update("jax_compilation_cache_dir", before[0])
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+    return tmp_path / "programs"
 
 
-def test_a_new_cache_loads_the_program_file_without_tracing(program_files):
+@pytest.fixture
+def default_files(tmp_path, monkeypatch):
+    """The default: no call, `$JAXPOSE_CACHE` names the folder."""
+    monkeypatch.setattr(_programs, "_CHOICE", [])
+    monkeypatch.setenv("JAXPOSE_CACHE", str(tmp_path))
+    return tmp_path / "programs"
+
+
+def test_by_default_a_new_cache_loads_the_program_file_without_tracing(default_files):
+    before = jax.config.jax_compilation_cache_dir
     x = jnp.arange(5.0)
     _TRACES.clear()
     first = BoundedJit(_summarise)(x, 2.0)
     assert _TRACES == [5]
-    assert len(list(program_files.glob("summarise-*.stablehlo"))) == 1
+    assert len(list(default_files.glob("summarise-*.xla"))) == 1
+    assert jax.config.jax_compilation_cache_dir == before  # JAX's own configuration untouched
     second = BoundedJit(_summarise)(x, 2.0)  # a new in-memory cache, as in a new process
     assert _TRACES == [5]
     assert second.label == first.label == "scaled by 2.0"
@@ -87,13 +115,13 @@ def test_other_static_values_or_shapes_are_other_files(program_files):
     cached = BoundedJit(_summarise)
     outs = [cached(jnp.arange(n, dtype=float), s) for n, s in ((5, 2.0), (5, 3.0), (4, 2.0))]
     assert [float(o.total) for o in outs] == [20.0, 30.0, 12.0]
-    assert len(list(program_files.glob("summarise-*.stablehlo"))) == 3
+    assert len(list(program_files.glob("summarise-*.xla"))) == 3
 
 
 def test_an_unreadable_program_file_is_traced_again_and_replaced(program_files):
     x = jnp.arange(3.0)
     BoundedJit(_summarise)(x, 1.0)
-    (path,) = program_files.glob("summarise-*.stablehlo")
+    (path,) = program_files.glob("summarise-*.xla")
     path.write_bytes(b"not a program")
     _TRACES.clear()
     out = BoundedJit(_summarise)(x, 1.0)
@@ -106,7 +134,7 @@ def test_an_unreadable_program_file_is_traced_again_and_replaced(program_files):
 def test_static_arguments_pickle_cannot_write_compile_without_a_file(program_files):
     cached = BoundedJit(lambda x, f: f(jnp.sum(x)))
     assert float(cached(jnp.arange(4.0), lambda s: s * 2)) == 12.0
-    assert not list(program_files.glob("*.stablehlo"))
+    assert not list(program_files.glob("*.xla"))
 
 
 def test_program_names_depend_on_the_static_arguments_and_the_shapes():
@@ -134,3 +162,57 @@ def test_program_names_depend_on_the_tracing_flags():
         assert program_name(_summarise, (None, 2.0), tree, leaves) != name
     finally:
         jax.config.update("jax_numpy_rank_promotion", before)
+
+
+def test_off_keeps_no_file_and_gives_the_same_result(tmp_path, monkeypatch):
+    monkeypatch.setattr(_programs, "_CHOICE", [])
+    monkeypatch.setenv("JAXPOSE_CACHE", "off")
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert float(BoundedJit(_summarise)(jnp.arange(3.0), 2.0).total) == 6.0
+    assert not list(tmp_path.rglob("*.xla"))
+
+
+def test_trim_deletes_the_least_recently_used_files_first(tmp_path):
+    for age, name in enumerate(("newest", "middle", "oldest")):
+        path = tmp_path / f"{name}.xla"
+        path.write_bytes(b"x" * 100)
+        os.utime(path, (1e9 - age, 1e9 - age))
+    (tmp_path / "other.txt").write_bytes(b"x" * 1000)  # not a program file: never counted or deleted
+    trim(tmp_path, limit=250)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["middle.xla", "newest.xla", "other.txt"]
+    trim(tmp_path, limit=0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["newest.xla", "other.txt"]  # the newest stays
+
+
+def test_a_load_marks_the_file_as_recently_used(program_files):
+    x = jnp.arange(4.0)
+    BoundedJit(_summarise)(x, 5.0)
+    (path,) = program_files.glob("summarise-*.xla")
+    os.utime(path, (1e9, 1e9))
+    BoundedJit(_summarise)(x, 5.0)
+    assert path.stat().st_mtime > 1e9 + 1
+
+
+def test_program_names_depend_on_the_machine(monkeypatch):
+    leaves, tree = jax.tree.flatten((jnp.zeros(3),))
+    name = program_name(_summarise, (None, 2.0), tree, leaves)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_enable_fast_math=true")
+    assert program_name(_summarise, (None, 2.0), tree, leaves) != name
+    monkeypatch.setattr(_programs, "_cpu_identity", lambda: "another CPU")
+    monkeypatch.delenv("XLA_FLAGS")
+    assert program_name(_summarise, (None, 2.0), tree, leaves) != name
+
+
+def test_the_public_estimate_loads_its_program_from_the_file(default_files, paper_clouds, monkeypatch):
+    prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
+    config = jp.Config.fast()
+    first = jp.estimate(prev, curr, config, key=jax.random.key(0))
+    assert list(default_files.glob("build_and_estimate-*.xla"))
+    clear_programs()  # as a new process: nothing compiled in memory
+    compiles = []
+    compile_flat = _programs._compile_flat
+    monkeypatch.setattr(_programs, "_compile_flat", lambda *a: compiles.append(a) or compile_flat(*a))
+    again = jp.estimate(prev, curr, config, key=jax.random.key(0))
+    assert not compiles
+    np.testing.assert_array_equal(np.asarray(again.params), np.asarray(first.params))
+    assert again.status == first.status
