@@ -31,6 +31,7 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 from jax.experimental import serialize_executable
 
 PROGRAMS = 4
@@ -212,9 +213,21 @@ def _compile_flat(fn: Callable, static, intree, leaves):
     return compiled, trees[0]
 
 
+@functools.cache
+def prepare_custom_calls() -> None:
+    """Make ready, once per process, what the custom calls of a loaded program need: JAX
+    initialises the CPU's LAPACK kernels (eigh, LU, Cholesky) when it first lowers a linear
+    algebra operation, and a program loaded from a file is never lowered. Without this, the
+    first program loaded in a fresh process that called eigh crashed it (segmentation fault,
+    jaxlib 0.10.2). Lowering a small program of those operations (not compiling it) does it."""
+    a = jnp.eye(2, dtype=jnp.float32)
+    jax.jit(lambda a: (jnp.linalg.eigh(a), jnp.linalg.solve(a, a), jnp.linalg.cholesky(a))).lower(a)
+
+
 def _load(path: Path):
     """The compiled program and output tree saved at `path`, or None if it cannot be read or
     loaded. A load touches the file (least recently used files are deleted first)."""
+    prepare_custom_calls()
     try:
         payload, in_tree, flat_out, skeleton = pickle.loads(path.read_bytes())
         compiled = serialize_executable.deserialize_and_load(payload, in_tree, flat_out)

@@ -1,6 +1,9 @@
 """The public path's bounded cache of compiled programs (jaxpose._programs)."""
 
+import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import equinox as eqx
@@ -216,3 +219,36 @@ def test_the_public_estimate_loads_its_program_from_the_file(default_files, pape
     assert not compiles
     np.testing.assert_array_equal(np.asarray(again.params), np.asarray(first.params))
     assert again.status == first.status
+
+
+_NEW_PROCESS = """
+import json, sys
+import jax.numpy as jnp
+from jaxpose._programs import BoundedJit
+
+traced = []
+
+
+def solve(x, y):
+    traced.append(1)
+    m = x.reshape(3, 3) @ x.reshape(3, 3).T + jnp.eye(3)
+    return jnp.linalg.eigh(m)[0], jnp.linalg.solve(m, y), jnp.linalg.cholesky(m)
+
+
+out = BoundedJit(solve)(jnp.arange(9.0), jnp.ones(3))
+print(json.dumps({"traced": len(traced), "out": [o.ravel().tolist() for o in out]}))
+"""
+
+
+def test_a_program_with_linear_algebra_loads_and_runs_in_a_new_process(tmp_path):
+    """LAPACK's kernels (eigh, LU, Cholesky) are made ready before a program is loaded: a
+    fresh process that loaded such a program without lowering anything crashed."""
+    env = {**os.environ, "JAXPOSE_CACHE": str(tmp_path)}
+    runs = []
+    for _ in range(2):
+        done = subprocess.run([sys.executable, "-c", _NEW_PROCESS], env=env, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    assert [r["traced"] for r in runs] == [1, 0]  # the second process loaded the file
+    assert runs[0]["out"] == runs[1]["out"]
+    assert len(list((tmp_path / "programs").glob("solve-*.xla"))) == 1
