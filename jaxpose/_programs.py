@@ -227,6 +227,8 @@ def prepare_custom_calls() -> None:
 def _load(path: Path):
     """The compiled program and output tree saved at `path`, or None if it cannot be read or
     loaded. A load touches the file (least recently used files are deleted first)."""
+    if not os.path.isfile(path):  # no file (or none that can be read): compile
+        return None
     prepare_custom_calls()
     try:
         payload, in_tree, flat_out, skeleton = pickle.loads(path.read_bytes())

@@ -208,7 +208,7 @@ def test_program_names_depend_on_the_machine(monkeypatch):
 
 def test_the_public_estimate_loads_its_program_from_the_file(default_files, paper_clouds, monkeypatch):
     prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
-    config = jp.Config.fast()
+    config = jp.Config.paper()  # the smallest program of the public path: the test is the file
     first = jp.estimate(prev, curr, config, key=jax.random.key(0))
     assert list(default_files.glob("build_and_estimate-*.xla"))
     clear_programs()  # as a new process: nothing compiled in memory
