@@ -14,7 +14,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
-from evosax.algorithms import CMA_ES
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._batch import score_batch
@@ -57,6 +56,10 @@ def box_scale(config: Config) -> Float[Array, "6"]:
 def global_search(problem: Problem, config: Config, key: PRNGKeyArray, start=None) -> GlobalResult:
     """CMA-ES (evosax) over the search box centred on `start` (default p = 0), scoring
     `problem.search_problem` (the coarse problem where `GlobalSearch.coarse_factor` > 1)."""
+    # Imported where the search is traced (half a second of importing flax and optax): a
+    # process whose programs load from their files (`jaxpose._programs`) never needs it.
+    from evosax.algorithms import CMA_ES
+
     scored = problem.search_problem
     dtype = problem.d.dtype
     scale = box_scale(config).astype(dtype)

@@ -252,3 +252,12 @@ def test_a_program_with_linear_algebra_loads_and_runs_in_a_new_process(tmp_path)
     assert [r["traced"] for r in runs] == [1, 0]  # the second process loaded the file
     assert runs[0]["out"] == runs[1]["out"]
     assert len(list((tmp_path / "programs").glob("solve-*.xla"))) == 1
+
+
+def test_importing_jaxpose_leaves_the_search_library_for_the_first_trace():
+    """A process whose programs load from their files never traces the search: evosax (half a
+    second of imports) is imported where the search is traced, not with jaxpose."""
+    code = "import sys, jaxpose; print('evosax' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().splitlines()[-1] == "False"
