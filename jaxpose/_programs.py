@@ -280,19 +280,29 @@ def trim(folder: Path, limit: int = MAX_CACHE_BYTES) -> None:
         total -= size
 
 
-def stored_program(fn: Callable, static, dynamic, folder: Path) -> Callable | None:
-    """`fn` compiled for these arguments through a program file in `folder`: loaded if it is
-    there, else compiled and saved. Returns a callable of `dynamic`, or None where the static
-    arguments cannot be pickled (no file name): the caller then compiles it directly."""
-    leaves, intree = jax.tree.flatten(dynamic)
+def program_path(fn: Callable, static, intree, leaves, folder: Path | None) -> Path | None:
+    """Where `fn`'s program for these arguments is kept in `folder` (`program_name`), or None:
+    no folder, or static arguments that pickle cannot write (no file name)."""
+    if folder is None:
+        return None
     try:
-        path = folder / (program_name(fn, static, intree, leaves) + SUFFIX)
+        return folder / (program_name(fn, static, intree, leaves) + SUFFIX)
     except Exception:  # static arguments that pickle cannot write
         return None
-    loaded = _load(path)
+
+
+def compiled_program(fn: Callable, static, dynamic, folder: Path | None) -> Callable:
+    """`fn` compiled for these arguments: loaded from its program file in `folder` where it is
+    there, else traced, lowered and compiled on the flat arguments (`_compile_flat`) and saved
+    there. `folder` None (or static arguments that pickle cannot write) keeps no file. Returns
+    a callable of `dynamic`."""
+    leaves, intree = jax.tree.flatten(dynamic)
+    path = program_path(fn, static, intree, leaves, folder)
+    loaded = None if path is None else _load(path)
     if loaded is None:
         loaded = _compile_flat(fn, static, intree, leaves)
-        _save(path, *loaded)
+        if path is not None:
+            _save(path, *loaded)
     compiled, out_tree = loaded
 
     def program(dyn):
@@ -327,23 +337,13 @@ class BoundedJit:
             if memory_mappings() > CROWDED:
                 release_all()
             start = time.perf_counter()
-            program = self._compile(static, dynamic)
+            program = compiled_program(self.fn, static, dynamic, program_folder())
             self.last_compile_s = time.perf_counter() - start
             self.programs[key] = program
             while len(self.programs) > self.size:
                 self.programs.popitem(last=False)
         self.programs.move_to_end(key)
         return program(dynamic)
-
-    def _compile(self, static, dynamic) -> Callable:
-        """The compiled program: through a program file where a folder is set
-        (`program_folder`), else traced, lowered and compiled here."""
-        folder = program_folder()
-        if folder is not None:
-            program = stored_program(self.fn, static, dynamic, folder)
-            if program is not None:
-                return program
-        return jax.jit(lambda dyn: self.fn(*eqx.combine(dyn, static))).lower(dynamic).compile()
 
     def clear(self) -> None:
         """Drop every compiled program (they are freed once no result refers to them)."""

@@ -175,6 +175,22 @@ def test_off_keeps_no_file_and_gives_the_same_result(tmp_path, monkeypatch):
     assert not list(tmp_path.rglob("*.xla"))
 
 
+@pytest.mark.parametrize("cache", ["off", "folder"])
+def test_every_compile_takes_the_one_flat_route(cache, tmp_path, monkeypatch):
+    """With caching off, with a folder, and with static arguments pickle cannot write, a
+    program is compiled by `_compile_flat` on the flat arguments, and gives the pytree result."""
+    monkeypatch.setattr(_programs, "_CHOICE", [])
+    monkeypatch.setenv("JAXPOSE_CACHE", "off" if cache == "off" else str(tmp_path))
+    compiles = []
+    compile_flat = _programs._compile_flat
+    monkeypatch.setattr(_programs, "_compile_flat", lambda *a: compiles.append(a) or compile_flat(*a))
+    out = BoundedJit(_summarise)(jnp.arange(3.0), 2.0)
+    assert float(out.total) == 6.0 and isinstance(out, type(_summarise(jnp.arange(3.0), 2.0)))
+    assert float(BoundedJit(lambda x, f: f(jnp.sum(x)))(jnp.arange(4.0), lambda s: s * 2)) == 12.0
+    assert len(compiles) == 2
+    assert len(list(tmp_path.rglob("*.xla"))) == (0 if cache == "off" else 1)
+
+
 def test_trim_deletes_the_least_recently_used_files_first(tmp_path):
     for age, name in enumerate(("newest", "middle", "oldest")):
         path = tmp_path / f"{name}.xla"
