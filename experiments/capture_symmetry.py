@@ -61,7 +61,7 @@ def _at_motions(problem, config, ps):
         agree = _capture.consistency(problem, p, prev, curr, grid, gate, views)
         return agree, jnp.sum(seen_prev), jnp.sum(seen_curr)
 
-    twins = _capture.symmetric_candidates(ps[0], prev)
+    twins = _capture.symmetric_candidates(ps[0], prev, curr)
     return jax.vmap(one)(ps), twins
 
 

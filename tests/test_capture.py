@@ -14,8 +14,9 @@ from box_views import box_views
 import jaxpose as jp
 from jaxpose import _capture as capture
 from jaxpose._estimate import estimate_problem
+from jaxpose._poses import preceded_by_turn
 from jaxpose._problem import sized_batch_config, sized_config
-from jaxpose._rotations import signed_permutations, super_fibonacci
+from jaxpose._rotations import angles, signed_permutations, super_fibonacci
 from jaxpose.evaluation import capture as benchmark
 from jaxpose.evaluation import realistic
 
@@ -146,6 +147,74 @@ def test_half_turns_are_the_symmetries_of_a_box_seen_from_a_corner():
         moved = R.T @ (S @ (P - centre[:, None]))  # box frame, about the centre
         assert np.all(np.abs(np.abs(moved) - half[:, None]).min(axis=0) < 1e-9)  # on a face
         assert np.all(np.abs(moved) <= half[:, None] + 1e-9)
+
+
+def _face(half, axis, count, sign=1.0):
+    """A grid of `count` × `count` points on the face of a box (half-sides `half`) normal to
+    `axis` on its `sign` side, with its outward normals (box frame)."""
+    u, v = [a for a in range(3) if a != axis]
+    gu, gv = np.meshgrid(np.linspace(-half[u], half[u], count), np.linspace(-half[v], half[v], count))
+    p = np.zeros((3, gu.size))
+    p[u], p[v], p[axis] = gu.ravel(), gv.ravel(), sign * half[axis]
+    n = np.zeros((3, gu.size))
+    n[axis] = sign
+    return p, n
+
+
+def _same_axes(A, R):
+    """Whether the columns of A are those of R, up to order and sign."""
+    return np.allclose(np.sort(np.abs(R.T @ A), axis=0)[-1], 1.0, atol=1e-6)
+
+
+def test_face_axes_are_a_boxs_axes_where_the_normal_tensor_ties():
+    """Two faces of a box seen with equal areas: the normal tensor's two largest eigenvalues
+    tie, and its eigenvectors may lie anywhere in their plane (here 30° off, by a weighting
+    that keeps the tie); the face axes are the box's own axes."""
+    rng = np.random.default_rng(5)
+    R = np.asarray(realistic._random_rotation(rng))
+    half = np.array([0.5, 0.5, 0.3])
+    n0, n1 = _face(half, 0, 20)[1], _face(half, 1, 20)[1]
+    N = R @ np.concatenate([n0, n1], 1)
+    w = np.ones(N.shape[1])
+    tensor = (N * w) @ N.T
+    vals, vecs = np.linalg.eigh(tensor)
+    assert abs(vals[2] - vals[1]) < 1e-9  # the tie
+    axes = np.asarray(capture.face_axes(jnp.asarray(N), jnp.asarray(w)))
+    np.testing.assert_allclose(axes.T @ axes, np.eye(3), atol=1e-9)
+    assert _same_axes(axes, R)
+    # The eigenvectors of the tied pair, turned 30° in their plane, are eigenvectors too.
+    turn = np.asarray(realistic._axis_angle(R[:, 2], math.radians(30.0)))
+    assert np.allclose(tensor @ (turn @ R[:, 0]), vals[2] * (turn @ R[:, 0]), atol=1e-9)
+    assert not _same_axes(turn @ R, R)
+
+
+def test_twins_of_a_face_seen_head_on_come_from_both_views():
+    """The previous view sees one face of a box head-on, the current one, after a 50° turn,
+    two more: the twins of the true motion are the box's half turns about its own centre,
+    although the previous view alone has no depth along the line of sight."""
+    rng = np.random.default_rng(7)
+    half = np.array([0.6, 0.4, 0.25])
+    R = np.asarray(realistic._random_rotation(rng))
+    centre = np.array([0.1, -0.2, 0.3])
+    P, N = _face(half, 2, 25)
+    prev = _surface(R @ P + centre[:, None], R @ N)
+    G = np.asarray(realistic._axis_angle(R @ np.array([1.0, 0.3, 0.0]), math.radians(50.0)))
+    xyz = np.array([0.05, 0.02, -0.04])
+    faces = [_face(half, 2, 25), _face(half, 1, 25, -1.0), _face(half, 0, 25)]
+    Q = np.concatenate([f[0] for f in faces], 1)
+    M = np.concatenate([f[1] for f in faces], 1)
+    curr = _surface(G @ (R @ Q + centre[:, None]) + xyz[:, None], G @ R @ M)
+    p = jnp.concatenate([jnp.asarray(angles(jnp.asarray(G))), jnp.asarray(xyz)])
+    twins = np.asarray(capture.symmetric_candidates(p, prev, curr))
+    expected = [
+        np.asarray(preceded_by_turn(p, jnp.asarray(R @ np.diag(d) @ R.T), jnp.asarray(centre)))
+        for d in ((1.0, -1, -1), (-1, 1.0, -1), (-1, -1, 1.0))
+    ]
+    for e in expected:
+        assert min(np.abs(t - e).max() for t in twins) < 1e-6
+    # From the previous view alone, the centre lies on the seen face: 25 cm off along its normal.
+    _, middle = capture.half_turns(prev)
+    assert abs(float(R[:, 2] @ (np.asarray(middle) - centre)) - 0.25) < 1e-9
 
 
 @pytest.fixture(scope="module")
