@@ -198,10 +198,18 @@ def program_name(fn: Callable, static, intree, leaves) -> str:
 SUFFIX = ".xla"
 
 
+JAX_CACHE_HIT = "/jax/compilation_cache/cache_hits"
+"""The monitoring event JAX records when a compile is answered by its persistent compilation
+cache (`jax.monitoring`)."""
+
+
 def _compile_flat(fn: Callable, static, intree, leaves):
     """`fn` traced, lowered and compiled on flat arguments: the compiled program (a callable of
-    the leaves, returning the output's leaves) and the output tree."""
-    trees = []
+    the leaves, returning the output's leaves), the output tree, and whether JAX's persistent
+    compilation cache answered the compile (`JAX_CACHE_HIT`). Such an executable runs, but
+    XLA:CPU cannot serialise it again: the copy fails at its first run ("Function ... not
+    found", jaxlib 0.10.2), so it is never saved to a program file."""
+    trees, hits = [], []
 
     def flat(*flat_args):
         out = fn(*eqx.combine(jax.tree.unflatten(intree, flat_args), static))
@@ -209,8 +217,16 @@ def _compile_flat(fn: Callable, static, intree, leaves):
         trees.append(out_tree)
         return out_leaves
 
-    compiled = jax.jit(flat).lower(*leaves).compile()
-    return compiled, trees[0]
+    def count(event, **_):
+        if event == JAX_CACHE_HIT:
+            hits.append(event)
+
+    jax.monitoring.register_event_listener(count)
+    try:
+        compiled = jax.jit(flat).lower(*leaves).compile()
+    finally:
+        jax.monitoring.unregister_event_listener(count)
+    return compiled, trees[0], bool(hits)
 
 
 @functools.cache
@@ -294,16 +310,18 @@ def program_path(fn: Callable, static, intree, leaves, folder: Path | None) -> P
 def compiled_program(fn: Callable, static, dynamic, folder: Path | None) -> Callable:
     """`fn` compiled for these arguments: loaded from its program file in `folder` where it is
     there, else traced, lowered and compiled on the flat arguments (`_compile_flat`) and saved
-    there. `folder` None (or static arguments that pickle cannot write) keeps no file. Returns
-    a callable of `dynamic`."""
+    there, unless JAX's persistent compilation cache answered the compile (that executable
+    cannot be serialised again). `folder` None (or static arguments that pickle cannot write)
+    keeps no file. Returns a callable of `dynamic`."""
     leaves, intree = jax.tree.flatten(dynamic)
     path = program_path(fn, static, intree, leaves, folder)
     loaded = None if path is None else _load(path)
     if loaded is None:
-        loaded = _compile_flat(fn, static, intree, leaves)
-        if path is not None:
-            _save(path, *loaded)
-    compiled, out_tree = loaded
+        compiled, out_tree, from_jax_cache = _compile_flat(fn, static, intree, leaves)
+        if path is not None and not from_jax_cache:
+            _save(path, compiled, out_tree)
+    else:
+        compiled, out_tree = loaded
 
     def program(dyn):
         return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(dyn)))
