@@ -34,7 +34,6 @@ from jaxpose import _capture
 from jaxpose._poses import displacement_from_motion
 from jaxpose._problem import build_problem, sized_config
 from jaxpose._rotations import rotation, rotation_angle
-from jaxpose._visibility import hidden
 from jaxpose.evaluation import capture
 
 FEW = 50
@@ -50,14 +49,9 @@ def _at_motions(problem, config, ps):
     curr, grid = _capture.current_surface(problem, so3.points)
     views = _capture.view_maps(problem)
     gate = jnp.asarray(config.fine.inlier, problem.d.dtype)
-    camera = _capture.camera_in_frame_n(problem)
 
     def one(p):
-        G, xyz = rotation(p[0], p[1], p[2]), p[3:]
-        moved = G @ prev.points + xyz[:, None]
-        back = G.T @ (curr.points - xyz[:, None])
-        seen_prev = _capture._seen_after(G, xyz, prev, camera) & ~hidden(views[1], moved, _capture.OCCLUSION_MARGIN)
-        seen_curr = _capture._seen_before(G, xyz, curr, camera) & ~hidden(views[0], back, _capture.OCCLUSION_MARGIN)
+        _, seen_prev, _, seen_curr = _capture.expected_in_view(problem, p, prev, curr, views)
         agree = _capture.consistency(problem, p, prev, curr, grid, gate, views)
         return agree, jnp.sum(seen_prev), jnp.sum(seen_curr)
 

@@ -365,6 +365,25 @@ def view_maps(problem: Problem) -> tuple[RangeMap, RangeMap]:
     )
 
 
+def expected_in_view(
+    problem: Problem, p: Float[Array, "6"], prev: Surface, curr: Surface, views: tuple[RangeMap, RangeMap]
+) -> tuple[Float[Array, "3 S"], Bool[Array, " S"], Float[Array, "3 M"], Bool[Array, " M"]]:
+    """Under the motion p (frame n): the previous points moved, and which of them the current
+    view should see; the current points moved back, and which of them the previous view should
+    have seen. A point should be seen when it faces the camera and the other view's range map
+    (`views`, [`view_maps`][]) does not put it more than `OCCLUSION_MARGIN` behind nearer
+    surface."""
+    prev_map, curr_map = views
+    G = rotation(p[0], p[1], p[2])
+    xyz = p[3:]
+    camera = camera_in_frame_n(problem)
+    moved = G @ prev.points + xyz[:, None]
+    back = G.T @ (curr.points - xyz[:, None])
+    seen_prev = _seen_after(G, xyz, prev, camera) & ~hidden(curr_map, moved, OCCLUSION_MARGIN)
+    seen_curr = _seen_before(G, xyz, curr, camera) & ~hidden(prev_map, back, OCCLUSION_MARGIN)
+    return moved, seen_prev, back, seen_curr
+
+
 def consistency(
     problem: Problem,
     p: Float[Array, "6"],
@@ -375,22 +394,16 @@ def consistency(
     views: tuple[RangeMap, RangeMap] | None = None,
 ) -> Float[Array, ""]:
     """How well p explains both clouds (0–1): of the previous points that should be seen after
-    the motion and the current points that should have been seen before, the fraction that
-    finds a point of the other cloud within `gate` metres (area-weighted). A point should be
-    seen when it faces the camera and the other view's range map (`views`, [`view_maps`][]
-    where None) does not put it more than `OCCLUSION_MARGIN` behind nearer surface: a
-    target's parts that hide one another then cost the truth nothing, while a wrong motion
-    still pays for the points it puts where the other view saw empty space or farther
-    surface."""
-    prev_map, curr_map = view_maps(problem) if views is None else views
-    G = rotation(p[0], p[1], p[2])
-    xyz = p[3:]
-    camera = camera_in_frame_n(problem)
-    moved = G @ prev.points + xyz[:, None]
-    back = G.T @ (curr.points - xyz[:, None])
-    w_prev = prev.weights * (_seen_after(G, xyz, prev, camera) & ~hidden(curr_map, moved, OCCLUSION_MARGIN))
+    the motion and the current points that should have been seen before
+    ([`expected_in_view`][]; `views` from [`view_maps`][] where None), the fraction that finds
+    a point of the other cloud within `gate` metres (area-weighted). A target's parts that hide
+    one another then cost the truth nothing, while a wrong motion still pays for the points it
+    puts where the other view saw empty space or farther surface."""
+    views = view_maps(problem) if views is None else views
+    moved, seen_prev, back, seen_curr = expected_in_view(problem, p, prev, curr, views)
+    w_prev = prev.weights * seen_prev
     _, d_prev = nearest(curr_grid, moved, SLOTS)
-    w_curr = curr.weights * (_seen_before(G, xyz, curr, camera) & ~hidden(prev_map, back, OCCLUSION_MARGIN))
+    w_curr = curr.weights * seen_curr
     _, d_curr = nearest(problem.fine.grid, back, SLOTS)
     hit = jnp.sum(w_prev * (d_prev < gate)) + jnp.sum(w_curr * (d_curr < gate))
     return hit / jnp.maximum(jnp.sum(w_prev) + jnp.sum(w_curr), jnp.finfo(p.dtype).tiny)

@@ -114,6 +114,18 @@ def test_overlap_translation_is_exact_for_a_shared_surface():
     assert np.linalg.norm(np.asarray(t) - xyz) < 0.02
 
 
+def _face(half, axis, count, sign=1.0):
+    """A grid of `count` × `count` points on the face of a box (half-sides `half`) normal to
+    `axis` on its `sign` side, with its outward normals (box frame)."""
+    u, v = [a for a in range(3) if a != axis]
+    gu, gv = np.meshgrid(np.linspace(-half[u], half[u], count), np.linspace(-half[v], half[v], count))
+    p = np.zeros((3, gu.size))
+    p[u], p[v], p[axis] = gu.ravel(), gv.ravel(), sign * half[axis]
+    n = np.zeros((3, gu.size))
+    n[axis] = sign
+    return p, n
+
+
 def test_half_turns_are_the_symmetries_of_a_box_seen_from_a_corner():
     """Three faces of a 1.2 × 0.8 × 0.5 m box (turned and shifted at random, sampled on grids
     that reach the edges, each face at its own density): the half turns come out about the
@@ -123,18 +135,9 @@ def test_half_turns_are_the_symmetries_of_a_box_seen_from_a_corner():
     half = np.array([0.6, 0.4, 0.25])
     R = np.asarray(realistic._random_rotation(rng))
     centre = rng.uniform(-1, 1, 3)
-    pts, nrm = [], []
-    for axis, count in zip(range(3), (30, 21, 12), strict=True):
-        u, v = [a for a in range(3) if a != axis]
-        gu, gv = np.meshgrid(np.linspace(-half[u], half[u], count), np.linspace(-half[v], half[v], count))
-        p = np.zeros((3, gu.size))
-        p[u], p[v], p[axis] = gu.ravel(), gv.ravel(), half[axis]
-        n = np.zeros((3, gu.size))
-        n[axis] = 1.0
-        pts.append(p)
-        nrm.append(n)
-    local = np.concatenate(pts, 1)
-    P, N = R @ local + centre[:, None], R @ np.concatenate(nrm, 1)
+    faces = [_face(half, axis, count) for axis, count in zip(range(3), (30, 21, 12), strict=True)]
+    local = np.concatenate([f[0] for f in faces], 1)
+    P, N = R @ local + centre[:, None], R @ np.concatenate([f[1] for f in faces], 1)
     turns, middle = capture.half_turns(_surface(P, N))
     turns = np.asarray(turns)
     np.testing.assert_allclose(np.asarray(middle), centre, atol=1e-9)
@@ -147,18 +150,6 @@ def test_half_turns_are_the_symmetries_of_a_box_seen_from_a_corner():
         moved = R.T @ (S @ (P - centre[:, None]))  # box frame, about the centre
         assert np.all(np.abs(np.abs(moved) - half[:, None]).min(axis=0) < 1e-9)  # on a face
         assert np.all(np.abs(moved) <= half[:, None] + 1e-9)
-
-
-def _face(half, axis, count, sign=1.0):
-    """A grid of `count` × `count` points on the face of a box (half-sides `half`) normal to
-    `axis` on its `sign` side, with its outward normals (box frame)."""
-    u, v = [a for a in range(3) if a != axis]
-    gu, gv = np.meshgrid(np.linspace(-half[u], half[u], count), np.linspace(-half[v], half[v], count))
-    p = np.zeros((3, gu.size))
-    p[u], p[v], p[axis] = gu.ravel(), gv.ravel(), sign * half[axis]
-    n = np.zeros((3, gu.size))
-    n[axis] = sign
-    return p, n
 
 
 def _same_axes(A, R):
@@ -177,7 +168,7 @@ def test_face_axes_are_a_boxs_axes_where_the_normal_tensor_ties():
     N = R @ np.concatenate([n0, n1], 1)
     w = np.ones(N.shape[1])
     tensor = (N * w) @ N.T
-    vals, vecs = np.linalg.eigh(tensor)
+    vals = np.linalg.eigvalsh(tensor)
     assert abs(vals[2] - vals[1]) < 1e-9  # the tie
     axes = np.asarray(capture.face_axes(jnp.asarray(N), jnp.asarray(w)))
     np.testing.assert_allclose(axes.T @ axes, np.eye(3), atol=1e-9)
