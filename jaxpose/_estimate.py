@@ -585,10 +585,7 @@ def fine_passes(
         run = tree_select(run.joined >= 0, joined_result(runs, run), run)
         return jax.tree.map(lambda stacked, x: stacked.at[i].set(x), runs, run), None
 
-    shapes = jax.eval_shape(lambda: fine_refine(problem, config, starts[0]))
-    empty = jax.tree.map(lambda s: jnp.zeros((passes, *s.shape), s.dtype), shapes)
-    empty = eqx.tree_at(lambda r: r.conflict, empty, jnp.full(passes, jnp.nan, empty.conflict.dtype))
-    runs, _ = jax.lax.scan(one_pass, empty, jnp.arange(passes))
+    runs, _ = jax.lax.scan(one_pass, FineResult.empty(passes, starts.dtype), jnp.arange(passes))
     return runs
 
 

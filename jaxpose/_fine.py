@@ -220,6 +220,26 @@ class FineResult(eqx.Module):
     conflict: Float[Array, ""]
     joined: Int[Array, ""]
 
+    @classmethod
+    def empty(cls, count: int, dtype) -> FineResult:
+        """`count` blank results stacked on a leading axis, of the types [`fine_refine`][]
+        returns for floats of `dtype` (`conflict` NaN, `joined` −1, the rest zero): the carry of
+        a loop that fills one row per fit, built without tracing a fit to learn its types
+        (that trace cost about a second of the public program's tracing on a 2-core CPU)."""
+        zero = jnp.zeros((), dtype)
+        blank = cls(
+            params=jnp.zeros(6, dtype),
+            converged=jnp.asarray(False),
+            steps=jnp.asarray(0, jnp.int32),
+            inliers=zero,
+            rms=zero,
+            planar_rms=zero,
+            used=jnp.asarray(0, jnp.int32),
+            conflict=jnp.full((), jnp.nan, dtype),
+            joined=jnp.asarray(-1, jnp.int32),
+        )
+        return jax.tree.map(lambda x: jnp.broadcast_to(x, (count, *x.shape)), blank)
+
 
 def slab_distance(points: Float[Array, "3 N"], planes, d) -> Float[Array, " N"]:
     """Distance of each point (frame n or ν, SoA) to the nearest cutting plane."""

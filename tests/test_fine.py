@@ -584,6 +584,22 @@ def test_fine_stage_recovers_the_displacement_from_a_start_two_degrees_off(paper
     assert np.degrees(np.abs(np.asarray(start - truth))[:3]).max() > 1.0
 
 
+@pytest.mark.parametrize("config", [CONFIG, jp.Config()], ids=["slabs", "default"])
+def test_the_empty_stack_of_fits_has_a_fits_types(paper_clouds, config):
+    """`fine_passes` carries `FineResult.empty` through its scan instead of tracing a fit to
+    learn the types: each row must have exactly the shapes, dtypes and weak types of a fit."""
+    prev, curr = paper_clouds["n5", "previous"], paper_clouds["n5", "variant2"]
+    config = sized_config(prev, curr, config)
+    problem = jp.Problem.build(prev, curr, config)
+    fit = jax.eval_shape(lambda: fine_refine(problem, config, jnp.zeros(6)))
+    empty = jp_fine.FineResult.empty(3, jnp.zeros(6).dtype)
+    assert jax.tree.structure(fit) == jax.tree.structure(empty)
+    for row, stacked in zip(jax.tree.leaves(fit), jax.tree.leaves(empty), strict=True):
+        assert stacked.shape == (3, *row.shape)
+        assert stacked.dtype == row.dtype and stacked.weak_type == row.weak_type
+    assert np.isnan(np.asarray(empty.conflict)).all() and (np.asarray(empty.joined) == -1).all()
+
+
 def test_a_noisy_pair_converges_to_its_noise_floor(camera):
     """With 1 cm range noise the matches keep changing by amounts the data cannot resolve: the
     stage must stop there and say "converged" (rounds below the limit), not cycle to the limit
