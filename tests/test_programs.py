@@ -191,6 +191,28 @@ def test_every_compile_takes_the_one_flat_route(cache, tmp_path, monkeypatch):
     assert len(list(tmp_path.rglob("*.xla"))) == (0 if cache == "off" else 1)
 
 
+def test_programs_compile_with_jaxposes_xla_options(monkeypatch):
+    """Every program of the route is compiled with `compiler_options()` (on the CPU backend,
+    `CPU_COMPILER_OPTIONS`), and gives the same result as plain jit."""
+    seen = []
+    compile_ = jax.stages.Lowered.compile
+    monkeypatch.setattr(jax.stages.Lowered, "compile", lambda self, **kw: seen.append(kw) or compile_(self, **kw))
+    monkeypatch.setattr(_programs, "_CHOICE", [None])
+    x = jnp.arange(5.0)
+    assert float(BoundedJit(_scaled_sum)(x, 2.0)) == float(jax.jit(_scaled_sum, static_argnums=1)(x, 2.0))
+    assert seen[0] == {"compiler_options": _programs.compiler_options()}
+    if jax.default_backend() == "cpu":
+        assert _programs.compiler_options() == _programs.CPU_COMPILER_OPTIONS != {}
+
+
+def test_an_option_xla_does_not_know_is_dropped_and_other_errors_raise():
+    lowered = jax.jit(lambda x: jnp.sum(x) * 2.0).lower(jnp.arange(4.0))
+    program = _programs.compile_lowered(lowered, {"xla_no_such_option_anywhere": True})
+    assert float(program(jnp.arange(4.0))) == 12.0
+    with pytest.raises(jax.errors.JaxRuntimeError):  # a known option with a value of the wrong type
+        _programs.compile_lowered(lowered, {"xla_cpu_use_fusion_emitters": "not a boolean"})
+
+
 def test_a_program_from_jaxs_cache_runs_and_keeps_no_file(program_files):
     """With JAX's persistent cache on (as `enable_compile_cache` and the test session set it),
     a program whose file is gone compiles again from JAX's cache. It runs, and no file is
