@@ -225,7 +225,7 @@ class FineResult(eqx.Module):
         """`count` blank results stacked on a leading axis, of the types [`fine_refine`][]
         returns for floats of `dtype` (`conflict` NaN, `joined` −1, the rest zero): the carry of
         a loop that fills one row per fit, built without tracing a fit to learn its types
-        (that trace cost about a second of the public program's tracing on a 2-core CPU)."""
+        (tracing one takes about a second on a 2-core CPU)."""
         zero = jnp.zeros((), dtype)
         blank = cls(
             params=jnp.zeros(6, dtype),

@@ -203,7 +203,7 @@ CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 `compiler_options`, which apply to that program alone; the user's other jitted code keeps XLA's
 defaults): XLA:CPU's loop-fusion kernels from its older elemental emitters instead of its
 fusion emitters. On eight realistic-benchmark pairs (four targets, σ 0 and 1 cm) the public
-program's warm call took 0.85–0.97× the time (median 0.89×) with the compile time unchanged
+program's warm call took 0.88–0.91× the time (median 0.89×) with the compile time unchanged
 within its noise (`experiments/compiler_options.py`, 2-core AMD EPYC). An XLA that no longer
 knows an option compiles without it (`compile_lowered`)."""
 
@@ -236,10 +236,10 @@ cache (`jax.monitoring`)."""
 def _compile_flat(fn: Callable, static, intree, leaves):
     """`fn` traced, lowered and compiled on flat arguments (with [`compiler_options`][]): the
     compiled program (a callable of the leaves, returning the output's leaves), the output
-    tree, and whether JAX's persistent
-    compilation cache answered the compile (`JAX_CACHE_HIT`). Such an executable runs, but
-    XLA:CPU cannot serialise it again: the copy fails at its first run ("Function ... not
-    found", jaxlib 0.10.2), so it is never saved to a program file."""
+    tree, and whether JAX's persistent compilation cache answered the compile
+    (`JAX_CACHE_HIT`). Such an executable runs, but XLA:CPU cannot serialise it again: the
+    copy fails at its first run ("Function ... not found", jaxlib 0.10.2), so it is never
+    saved to a program file."""
     trees, hits = [], []
 
     def flat(*flat_args):
