@@ -5,8 +5,9 @@ from it, the wall time of `jax.jit(...).lower(...)` (tracing and lowering) and o
 for: the build (`Problem.build`'s body), the global search, the refine, one fine-stage run,
 `estimate_problem` (search, refine, fine stage, status) and the whole public program
 (`_build_and_estimate`). A cold process: nothing is cached in memory or on disk; run it with
-`XLA_FLAGS=...` and a label to compare XLA's options. Also the median of 5 warm runs of the
-public program.
+`XLA_FLAGS=...` and a label to compare XLA's options. Every program is compiled as jaxpose
+compiles its own (`jaxpose._programs.compile_lowered`, with its XLA options). Also the median
+of 5 warm runs of the public program.
 
     uv run python experiments/compile_times.py [label] → results/compile_times[_label].json
 """
@@ -23,6 +24,7 @@ import jax
 from _common import write_json
 
 import jaxpose as jp
+from jaxpose import _programs
 from jaxpose._estimate import _build_and_estimate, estimate_problem
 from jaxpose._fine import fine_refine
 from jaxpose._problem import _build, sized_config
@@ -43,7 +45,7 @@ def compiled(fn, *args):
     t0 = time.perf_counter()
     lowered = jax.jit(lambda d: fn(*eqx.combine(d, static))).lower(dynamic)
     t1 = time.perf_counter()
-    program = lowered.compile()
+    program = _programs.compile_lowered(lowered)
     t2 = time.perf_counter()
     return {"lower_s": t1 - t0, "compile_s": t2 - t1}, lambda: program(dynamic)
 
