@@ -7,7 +7,8 @@ for: the build (`Problem.build`'s body), the global search, the refine, one fine
 (`_build_and_estimate`). A cold process: nothing is cached in memory or on disk; run it with
 `XLA_FLAGS=...` and a label to compare XLA's options. Every program is compiled as jaxpose
 compiles its own (`jaxpose._programs.compile_lowered`, with its XLA options). Also the median
-of 5 warm runs of the public program.
+of 5 warm runs of the public program, and three cold traces of it (`jax.clear_caches()`
+first: above, its parts were traced already), tracing and lowering apart.
 
     uv run python experiments/compile_times.py [label] → results/compile_times[_label].json
 """
@@ -32,6 +33,25 @@ from jaxpose._search import local_refine, restarted_search
 from jaxpose.evaluation import realistic
 
 
+def compile_lowered(lowered):
+    """`lowered` compiled as jaxpose compiles its programs; plain `compile()` with a jaxpose
+    older than `_programs.compile_lowered`, so that the script also measures earlier commits
+    (`PYTHONPATH=<checkout>`)."""
+    return getattr(_programs, "compile_lowered", lambda low: low.compile())(lowered)
+
+
+def cold_trace(fn, *args) -> dict:
+    """Seconds to trace and to lower `fn` for `args` after `jax.clear_caches()`: what a new
+    process pays before compiling, whatever was traced before in this one."""
+    dynamic, static = eqx.partition(args, eqx.is_array)
+    jax.clear_caches()
+    t0 = time.perf_counter()
+    traced = jax.jit(lambda d: fn(*eqx.combine(d, static))).trace(dynamic)
+    t1 = time.perf_counter()
+    traced.lower()
+    return {"trace_s": t1 - t0, "lower_s": time.perf_counter() - t1}
+
+
 def compile_times(fn, *args) -> tuple[dict, object]:
     """Lower and compile `fn` for `args` (arrays dynamic, the rest static); the seconds of
     each and the compiled program's output."""
@@ -45,7 +65,7 @@ def compiled(fn, *args):
     t0 = time.perf_counter()
     lowered = jax.jit(lambda d: fn(*eqx.combine(d, static))).lower(dynamic)
     t1 = time.perf_counter()
-    program = _programs.compile_lowered(lowered)
+    program = compile_lowered(lowered)
     t2 = time.perf_counter()
     return {"lower_s": t1 - t0, "compile_s": t2 - t1}, lambda: program(dynamic)
 
@@ -65,6 +85,9 @@ def main() -> None:
         print(f"{name}: lower {row['lower_s']:.2f} s, compile {row['compile_s']:.2f} s", flush=True)
     run_ms = 1e3 * warm_median(public)
     print(f"public program, warm run: {run_ms:.0f} ms")
+    traces = [cold_trace(_build_and_estimate, case.prev, case.curr, config, key) for _ in range(3)]
+    cold = ", ".join(f"trace {t['trace_s']:.2f} s + lower {t['lower_s']:.2f} s" for t in traces)
+    print(f"public program, cold: {cold}")
     label = f"_{sys.argv[1]}" if len(sys.argv) > 1 else ""
     write_json(
         f"compile_times{label}.json",
@@ -74,6 +97,7 @@ def main() -> None:
             "capacities": str(config.capacities),
             "stages": rows,
             "public_program_run_ms": run_ms,
+            "public_program_cold_traces": traces,
         },
     )
 
