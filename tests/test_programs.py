@@ -200,7 +200,8 @@ def test_programs_compile_with_jaxposes_xla_options(monkeypatch):
     monkeypatch.setattr(_programs, "_CHOICE", [None])
     x = jnp.arange(5.0)
     assert float(BoundedJit(_scaled_sum)(x, 2.0)) == float(jax.jit(_scaled_sum, static_argnums=1)(x, 2.0))
-    assert seen[0] == {"compiler_options": _programs.compiler_options()}
+    # `compile_lowered` passes no keyword where there are no options (a backend other than the CPU).
+    assert seen[0].get("compiler_options", {}) == _programs.compiler_options()
     if jax.default_backend() == "cpu":
         assert _programs.compiler_options() == _programs.CPU_COMPILER_OPTIONS != {}
 
