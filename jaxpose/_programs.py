@@ -198,14 +198,18 @@ def program_name(fn: Callable, static, intree, leaves) -> str:
 SUFFIX = ".xla"
 
 
-CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+CPU_COMPILER_OPTIONS = {"xla_cpu_opt_preset": "CPU_OPT_PRESET_FAST_COMPILE"}
 """XLA options of jaxpose's own programs on the CPU backend (`jax.stages.Lowered.compile`'s
 `compiler_options`, which apply to that program alone; the user's other jitted code keeps XLA's
-defaults): XLA:CPU's loop-fusion kernels from its older elemental emitters instead of its
-fusion emitters. On eight realistic-benchmark pairs (four targets, σ 0 and 1 cm) the public
-program's warm call took 0.88–0.91× the time (median 0.89×) with the compile time unchanged
-within its noise (`experiments/compiler_options.py`, 2-core AMD EPYC). An XLA that no longer
-knows an option compiles without it (`compile_lowered`)."""
+defaults): XLA:CPU's optimisation preset for a short compile, which leaves out passes that
+spend compile time to buy run time. On jaxpose's programs, full of small while loops (the
+search's generations, the fine stage's rounds and Gauss–Newton steps), those passes cost run
+time instead: on eight realistic-benchmark pairs (four targets, σ 0 and 1 cm) the public
+program's warm call took 0.73–0.85× the time of XLA's defaults (median 0.79×), where XLA:CPU's
+elemental loop emitters alone (`{"xla_cpu_use_fusion_emitters": False}`) gave 0.87–0.92×
+(median 0.89×), with the estimates the same to round-off
+(`experiments/compiler_options.py`, 2-core AMD EPYC). An XLA that no longer knows an option,
+or this value of it, compiles without it (`compile_lowered`)."""
 
 
 def compiler_options() -> dict:
@@ -214,16 +218,22 @@ def compiler_options() -> dict:
     return dict(CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else {}
 
 
+UNKNOWN_OPTION = ("No such compile option", "is not a valid enum value")
+"""The messages with which XLA refuses an option it does not know, or a value of an enumerated
+option it does not know ([`compile_lowered`][])."""
+
+
 def compile_lowered(lowered: jax.stages.Lowered, options: dict | None = None) -> jax.stages.Compiled:
     """`lowered` compiled with `options` (default: [`compiler_options`][]); without them where
-    XLA refuses one as unknown (an XLA that has dropped it)."""
+    XLA refuses one as unknown, or an enumerated option's value as unknown (an XLA that has
+    dropped it). Any other refusal, such as a value of the wrong type, raises."""
     options = compiler_options() if options is None else options
     if not options:
         return lowered.compile()
     try:
         return lowered.compile(compiler_options=options)
     except jax.errors.JaxRuntimeError as error:
-        if "No such compile option" not in str(error):
+        if not any(reason in str(error) for reason in UNKNOWN_OPTION):
             raise
         return lowered.compile()
 

@@ -210,6 +210,9 @@ def test_an_option_xla_does_not_know_is_dropped_and_other_errors_raise():
     lowered = jax.jit(lambda x: jnp.sum(x) * 2.0).lower(jnp.arange(4.0))
     program = _programs.compile_lowered(lowered, {"xla_no_such_option_anywhere": True})
     assert float(program(jnp.arange(4.0))) == 12.0
+    # A value of an enumerated option that this XLA does not know (one a later XLA may drop).
+    program = _programs.compile_lowered(lowered, {"xla_cpu_opt_preset": "CPU_OPT_PRESET_NO_SUCH_PRESET"})
+    assert float(program(jnp.arange(4.0))) == 12.0
     with pytest.raises(jax.errors.JaxRuntimeError):  # a known option with a value of the wrong type
         _programs.compile_lowered(lowered, {"xla_cpu_use_fusion_emitters": "not a boolean"})
 
