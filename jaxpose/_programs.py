@@ -206,10 +206,11 @@ spend compile time to buy run time. On jaxpose's programs it buys run time too, 
 not traced to a single pass (the programs are mostly small while loops: the search's
 generations, the fine stage's rounds and Gauss–Newton steps): on eight realistic-benchmark
 pairs (four targets, σ 0 and 1 cm) the public program's warm call took 0.62–0.84× the time
-of XLA's defaults (median 0.70×), where XLA:CPU's elemental loop emitters alone (`{"xla_cpu_use_fusion_emitters": False}`) gave 0.79–1.02×
-(median 0.87×); the compile took as long, and the estimates are the same to round-off
-(`experiments/compiler_options.py`, 2-core AMD EPYC). An XLA that no longer knows an option,
-or this value of it, compiles without it (`compile_lowered`)."""
+of XLA's defaults (median 0.70×), where XLA:CPU's elemental loop emitters alone
+(`{"xla_cpu_use_fusion_emitters": False}`) gave 0.79–1.02× (median 0.87×); the compile took
+as long, and the estimates are the same to round-off (`experiments/compiler_options.py`,
+2-core AMD EPYC). An XLA that no longer knows an option, or this value of it, compiles
+without it (`compile_lowered`)."""
 
 
 def compiler_options() -> dict:
