@@ -201,7 +201,7 @@ SUFFIX = ".xla"
 CPU_COMPILER_OPTIONS = {"xla_cpu_opt_preset": "CPU_OPT_PRESET_FAST_COMPILE"}
 """XLA options of jaxpose's own programs on the CPU backend (`jax.stages.Lowered.compile`'s
 `compiler_options`, which apply to that program alone; the user's other jitted code keeps XLA's
-defaults): XLA:CPU's optimisation preset for a short compile, which leaves out passes that
+defaults): XLA:CPU's optimisation preset for a short compile, meant to leave out passes that
 spend compile time to buy run time. On jaxpose's programs it buys run time too, for reasons
 not traced to a single pass (the programs are mostly small while loops: the search's
 generations, the fine stage's rounds and Gauss–Newton steps): on eight realistic-benchmark
