@@ -708,6 +708,9 @@ def identify_motion(
     Pure and jittable; no checks (see `identify`).
     """
     orbit = Orbit.inertial() if orbit is None else orbit
+    # Every reference array as int32 (no references: frame 0 for every frame), so that int32,
+    # int64 and absent references share one compiled program.
+    references = jnp.zeros(times.shape[0], jnp.int32) if references is None else jnp.asarray(references, jnp.int32)
     return _identify_motion(
         times, rotations, translations, valid, references, rotation_cov, rate_window, max_steps, shared_rounds, orbit
     )
@@ -720,7 +723,6 @@ def _identify_motion(
     """`identify_motion` with the orbit given (an inertial camera is `Orbit.inertial()`), so
     that both kinds of camera share one compiled program."""
     T = times.shape[0]
-    references = jnp.zeros(T, jnp.int32) if references is None else references
     used = used_frames(valid, references)
     eye = jnp.eye(3, dtype=times.dtype)
     if rotation_cov is None:
