@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib
 import os
 import pickle
 import platform
@@ -32,6 +33,7 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.experimental import serialize_executable
 
 PROGRAMS = 4
@@ -271,15 +273,27 @@ def _compile_flat(fn: Callable, static, intree, leaves):
     return compiled, trees[0], bool(hits)
 
 
+LAPACK_PREPARATION = ("jax._src.lib.lapack", "prepare_lapack_call")
+"""Module and name of the function that JAX's linear-algebra lowerings call to initialise
+the CPU's LAPACK kernels (private to JAX: looked up when needed, so that a JAX without it
+falls back to a lowering, `prepare_custom_calls`)."""
+
+
 @functools.cache
 def prepare_custom_calls() -> None:
     """Make ready, once per process, what the custom calls of a loaded program need: JAX
     initialises the CPU's LAPACK kernels (eigh, LU, Cholesky) when it first lowers a linear
     algebra operation, and a program loaded from a file is never lowered. Without this, the
     first program loaded in a fresh process that called eigh crashed it (segmentation fault,
-    jaxlib 0.10.2). Lowering a small program of those operations (not compiling it) does it."""
-    a = jnp.eye(2, dtype=jnp.float32)
-    jax.jit(lambda a: (jnp.linalg.eigh(a), jnp.linalg.solve(a, a), jnp.linalg.cholesky(a))).lower(a)
+    jaxlib 0.10.2). It calls the initialisation JAX's lowerings call (`LAPACK_PREPARATION`,
+    0.3 s); where a JAX lacks it, it lowers a small program of those operations instead (not
+    compiling it; 0.8 s on the 2-core CPU)."""
+    module, name = LAPACK_PREPARATION
+    try:
+        getattr(importlib.import_module(module), name)("syevd_ffi", np.dtype(np.float32))
+    except (ImportError, AttributeError):
+        a = jnp.eye(2, dtype=jnp.float32)
+        jax.jit(lambda a: (jnp.linalg.eigh(a), jnp.linalg.solve(a, a), jnp.linalg.cholesky(a))).lower(a)
 
 
 def _load(path: Path):

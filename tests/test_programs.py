@@ -319,6 +319,26 @@ def test_a_program_with_linear_algebra_loads_and_runs_in_a_new_process(tmp_path)
     assert len(list((tmp_path / "programs").glob("solve-*.xla"))) == 1
 
 
+def test_without_jaxs_lapack_preparation_a_lowering_prepares_the_kernels(monkeypatch):
+    """Where a JAX lacks the private `prepare_lapack_call` (`LAPACK_PREPARATION`),
+    `prepare_custom_calls` lowers a small linear-algebra program instead; the fresh-process
+    test above runs the function itself."""
+    lowered = []
+    jit = jax.jit
+    monkeypatch.setattr(_programs, "LAPACK_PREPARATION", ("jax._src.lib.lapack", "no_such_function"))
+    monkeypatch.setattr(jax, "jit", lambda fn: lowered.append(fn) or jit(fn))
+    _programs.prepare_custom_calls.cache_clear()
+    try:
+        _programs.prepare_custom_calls()
+    finally:
+        _programs.prepare_custom_calls.cache_clear()
+    assert len(lowered) == 1
+    monkeypatch.setattr(_programs, "LAPACK_PREPARATION", ("no_such_module_of_jax", "prepare"))
+    _programs.prepare_custom_calls()
+    _programs.prepare_custom_calls.cache_clear()
+    assert len(lowered) == 2
+
+
 def test_importing_jaxpose_leaves_the_search_library_for_the_first_trace():
     """A process whose programs load from their files never traces the search: evosax (half a
     second of imports) is imported where the search is traced, not with jaxpose."""
