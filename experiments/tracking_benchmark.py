@@ -23,7 +23,9 @@ separately). Per family and overall: median, p90 and max.
     uv run python experiments/tracking_benchmark.py summarise   (the table again from the JSON's rows)
     uv run python experiments/tracking_benchmark.py issue [runs]
         → results/tracking_issue_case.{json,md}: issue 25's own N5 case (`issue_tumble`),
-          and results/tracking_issue_case_model.{json,md}: each run against the model
+          results/tracking_issue_case_model.{json,md}: each run against the model, and
+          results/tracking_issue_case_identified.{json,md}: each run's registrations through
+          `identify` (as `identified` below)
     uv run python experiments/tracking_benchmark.py registrations
         → results/tracking_registrations.{json,md}: the saved registrations' rotation errors
           (keyframe → k against the truth), successes apart from those motion continuity
@@ -387,18 +389,28 @@ def identified(name: str = "tracking_benchmark") -> None:
     (`identified_errors`), beside the filter's errors of that run → `<name>_identified.{json,md}`.
     The first tumble compiles the fit; its time is not comparable with the others'."""
     benchmark, tumbles = saved_tumbles(name)
-    rate_hz = benchmark["rate_hz"]
     rows = []
     for old, saved in zip(benchmark["rows"], tumbles, strict=True):
         _, _, tumble, _ = draw_tumble(old["tumble"], BENCHMARK_SEEDS)
-        row = {key: old[key] for key in ("tumble", "family", "sigma_cm", "camera", "rate_deg_s")}
-        row |= {
-            "filter_rate_error_deg_s": old["rate_error_deg_s"],
-            "filter_attitude_error_deg": old["attitude_error_deg"],
-        }
-        row |= identified_errors(saved, tumble, rate_hz)
-        rows.append(row)
-        print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+        rows.append(identified_row(old, saved, tumble, benchmark["rate_hz"]))
+    write_identified(rows, benchmark["duration_s"], name)
+
+
+def identified_row(old: dict, saved: dict, tumble: Tumble, rate_hz: float) -> dict:
+    """One tracked tumble's filter errors (its row `old`) beside `identified_errors` of its
+    saved registrations `saved`."""
+    row = {key: old[key] for key in ("tumble", "family", "sigma_cm", "camera", "rate_deg_s")}
+    row |= {
+        "filter_rate_error_deg_s": old["rate_error_deg_s"],
+        "filter_attitude_error_deg": old["attitude_error_deg"],
+    }
+    row |= identified_errors(saved, tumble, rate_hz)
+    print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+    return row
+
+
+def write_identified(rows: list[dict], duration: float, name: str) -> None:
+    """The filter's and the identified motion's errors per family → `<name>_identified.{json,md}`."""
     columns = ("filter_rate_error_deg_s", "identified_rate_error_deg_s")
     columns += ("filter_attitude_error_deg", "identified_attitude_error_deg")
     summary = [
@@ -406,7 +418,7 @@ def identified(name: str = "tracking_benchmark") -> None:
         for family, group in by_family(rows).items()
     ]
     head = (
-        f"| family | tumbles | rate error at {benchmark['duration_s']:g} s, °/s, filter: median / p90 / max "
+        f"| family | tumbles | rate error at {duration:g} s, °/s, filter: median / p90 / max "
         "| identified: median / p90 / max | attitude error, °, filter: median / max | identified: median / max |\n"
         "|---|---|---|---|---|---|\n"
     )
@@ -850,17 +862,23 @@ def resummarise() -> None:
 
 def issue_case(runs: int = 3, duration: float = 10.0, rate_hz: float = 25.0) -> None:
     """Issue 25's own case (`issue_tumble`, σ = 1 cm) with `runs` independent noise draws →
-    `tracking_issue_case.{json,md}`, and each run tracked again against the body-frame model
-    (`model_row`) → `tracking_issue_case_model.{json,md}`."""
-    rows, models = [], []
+    `tracking_issue_case.{json,md}` (registrations in `tracking_issue_case_chains.npz`), each
+    run tracked again against the body-frame model (`model_row`) →
+    `tracking_issue_case_model.{json,md}`, and each run's registrations through `identify`
+    (`identified_row`) → `tracking_issue_case_identified.{json,md}`."""
+    rows, models, identified_rows = [], [], []
     for run in range(runs):
         key = jax.random.key(2000 + run)
         row = run_tumble(run, "n5", 1.0, issue_tumble(), key, duration, rate_hz)
         rows.append(row)
         print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
         models.append(model_row(row, SAVED[-1], issue_tumble(), key, duration, rate_hz))
+        identified_rows.append(identified_row(row, SAVED[-1], issue_tumble(), rate_hz))
     write(rows, runs, duration, rate_hz, "tracking_issue_case")
     write(models, runs, duration, rate_hz, "tracking_issue_case_model")
+    write_identified(identified_rows, duration, "tracking_issue_case")
+    stacked = {field: np.stack([s[field] for s in SAVED]) for field in SAVED[0]}
+    np.savez_compressed(RESULTS / "tracking_issue_case_chains.npz", **stacked)
 
 
 def main(

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
+import optimistix as optx
 import pytest
 
 import jaxpose as jp
@@ -117,6 +118,43 @@ def test_prediction_past_the_data_follows_the_truth():
     positions, std = d.predict_point(point, later)
     np.testing.assert_allclose(positions, R_true @ point + t_true, atol=1e-6)
     assert positions.shape == std.shape == (4, 3) and bool(jnp.all(jnp.isfinite(std)))
+
+
+def dynamics_of(target: Tumble, orbit=None) -> jp.Dynamics:
+    """The true dynamics of a tumble as a `Dynamics` (no fit): what `identify` should find."""
+    _, _, axes, moments, centre, omega = truth(target, jnp.zeros(1))
+    axes = axes.at[:, 2].multiply(jnp.linalg.det(axes))  # sorting the moments may leave it improper
+    zero = jnp.zeros(())
+    return jp.Dynamics(
+        moments[:2], axes, centre, target.velocity, omega, jnp.zeros((14, 14)), jnp.asarray(True),
+        zero, zero, zero, optx.RESULTS.successful, jnp.asarray(0), orbit,
+    )  # fmt: skip
+
+
+def test_the_rates_are_the_simulators_apparent_rates():
+    """`Dynamics.rates` of the true dynamics against the simulator's own integration: with an
+    inertial camera its body rates turned into the camera frame (G ω_b); with the chaser fixed
+    in the orbital frame, centred differences of its poses, log(G(t+h) G(t−h)ᵀ) / 2h."""
+    times = jnp.array([0.0, 7.5, 30.0, 45.0])
+    inertial = tumble(1)
+    G, _, body = tumble_poses(inertial, times)
+    expected = jnp.einsum("tij,tj->ti", G, body)
+    np.testing.assert_allclose(dynamics_of(inertial).rates(times), expected, atol=1e-8)
+
+    orbiting = Tumble.random(jax.random.key(5), rates_deg_s=(3.0, 8.0), orbital_camera=True)
+    orbit = jp.Orbit(jnp.asarray(orbiting.orbit_rate), C_FROM_O)
+    h = 1e-3
+    ahead, *_ = tumble_poses(orbiting, times + h)
+    behind, *_ = tumble_poses(orbiting, jnp.maximum(times - h, 0.0))
+    steps = jnp.where(times > 0, 2 * h, h)
+    differences = jax.vmap(lambda a, b: jaxlie.SO3.from_matrix(a @ b.T).log())(ahead, behind) / steps[:, None]
+    rates = dynamics_of(orbiting, orbit).rates(times)
+    np.testing.assert_allclose(rates[1:], differences[1:], atol=1e-8)  # centred: O(h²)
+    np.testing.assert_allclose(rates[0], differences[0], atol=1e-5)  # one-sided at t = 0: O(h)
+    # Beyond the body's own rate turned into the camera frame, the camera's turn at the orbit rate.
+    G, _, body = tumble_poses(orbiting, times)
+    camera_turn = jnp.linalg.norm(rates - jnp.einsum("tij,tj->ti", G, body), axis=1)
+    np.testing.assert_allclose(camera_turn, orbiting.orbit_rate, rtol=1e-6)
 
 
 def test_noisy_measurements_give_an_honest_covariance():

@@ -232,6 +232,23 @@ class Dynamics(eqx.Module):
         t = self.centre[None] + times[:, None] * self.velocity[None] - R @ self.centre
         return R, t
 
+    def rates(self, times: Float[ArrayLike, " T"]) -> Float[Array, "T 3"]:
+        """The target's angular velocity as the camera sees it at each time: ω(t) with
+        Ṙ Rᵀ = [ω(t)]× for the motion R(t) of [`predict`][jaxpose.Dynamics.predict] (rad/s, in
+        frame c at that time), the quantity [`jaxpose.Track.rate`][] estimates frame by frame.
+
+        `times`: seconds since the first frame, ascending and ≥ 0, past the data included.
+
+        With R = Q A Pᵀ (`motion_rotations`), Ṙ Rᵀ = Q̇ Qᵀ + Q Ȧ Aᵀ Qᵀ: the camera's own turn
+        −n C e_y (an orbiting camera, `Orbit`; zero for an inertial one) plus the body's rate
+        ω_b(t) from Euler's equations turned into frame c at time t by Q A = R P.
+        """
+        times = jnp.asarray(times, self.omega.dtype)
+        R, body = _integrate(self.principal_axes, self.moments, self.omega, times, self.orbit)
+        orbit = Orbit.inertial(self.omega.dtype) if self.orbit is None else self.orbit
+        camera_turn = -orbit.rate * orbit.camera_from_orbit[:, 1]
+        return jnp.einsum("tij,jk,tk->ti", R, self.principal_axes, body) + camera_turn[None]
+
     def predict_point(
         self, point: Float[ArrayLike, "3"], times: Float[ArrayLike, " T"]
     ) -> tuple[Float[Array, "T 3"], Float[Array, "T 3"]]:
