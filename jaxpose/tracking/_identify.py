@@ -235,7 +235,7 @@ class Dynamics(eqx.Module):
     def rates(self, times: Float[ArrayLike, " T"]) -> Float[Array, "T 3"]:
         """The target's angular velocity as the camera sees it at each time: ω(t) with
         Ṙ Rᵀ = [ω(t)]× for the motion R(t) of [`predict`][jaxpose.Dynamics.predict] (rad/s, in
-        frame c at that time), the quantity [`jaxpose.Track.rate`][] estimates frame by frame.
+        frame c at that time), the quantity `rate` of [`jaxpose.Track`][] estimates frame by frame.
 
         `times`: seconds since the first frame, ascending and ≥ 0, past the data included.
 
