@@ -20,6 +20,9 @@ A fifth case spins N5 about a principal axis: `observable` must be False.
 
     uv run python experiments/identify.py [duration_s] [rate_hz] [horizon_s]  →  results/identify.{json,md}
     uv run python experiments/identify.py orbital [duration_s] [rate_hz] [horizon_s]  →  results/identify_orbital.*
+    uv run python experiments/identify.py issue [runs] [duration_s] [rate_hz] [horizon_s]
+        →  results/identify_issue_case.*  (issue 25's own N5 tumble, moments 1 : 1.4 : 1.9,
+        `runs` noise draws; `ISSUE_CASE`)
 
 The tracks (each frame's chained motion, keyframe, registration flag and covariance) and the
 true motions go to `results/identify_tracks.npz`, so that `identify` can be studied again
@@ -41,6 +44,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 from _common import RESULTS, write_json
+from tracking_benchmark import issue_tumble
 
 import jaxpose as jp
 from jaxpose.sim import Tumble, simulate_sequence
@@ -55,9 +59,15 @@ ORBITAL_CASES = ("n5_orbital", "chibis_m_orbital")
 """Cases seen from a chaser whose camera is fixed in the orbital frame of a 500 km orbit
 (gravity-gradient torque; `identify(..., orbit=...)`): `identify.py orbital ...`."""
 DISTANCE = 6.0
+ISSUE_CASE = "n5_issue25"
+"""Issue 25's own tumble (`tracking_benchmark.issue_tumble`: N5 with principal moments
+1 : 1.4 : 1.9, 4.5 °/s about a non-principal axis, 5.5 m away), for `identify.py issue`: its
+moments lie far apart, where N5's random ones in `CASES` lie within 3 %."""
 
 
 def make_tumble(case: str, key) -> Tumble:
+    if case == ISSUE_CASE:
+        return issue_tumble()
     orbital = case.endswith("_orbital")
     base = Tumble.random(key, distance=DISTANCE, rates_deg_s=(3.0, 6.0), orbital_camera=orbital)
     case = case.removesuffix("_orbital")
@@ -375,8 +385,24 @@ def main(duration: float = 60.0, rate_hz: float = 25.0, horizon: float = 10.0, c
     write_json(f"{name}.json", {"duration_s": duration, "rate_hz": rate_hz, "horizon_s": horizon, "rows": rows})
 
 
+def issue(runs: int = 3, duration: float = 60.0, rate_hz: float = 25.0, horizon: float = 10.0) -> None:
+    """Issue 25's tumble (`ISSUE_CASE`) with `runs` independent noise draws (the keys of
+    indices 0 … runs − 1) → `results/identify_issue_case.{json,md}` and its tracks."""
+    results = [one_case(ISSUE_CASE, i, duration, rate_hz, horizon) for i in range(int(runs))]
+    rows = [{**row, "case": f"{ISSUE_CASE} #{i}"} for i, (row, _) in enumerate(results)]
+    arrays = {f"{i}/{k}": v for i, (_, saved) in enumerate(results) for k, v in saved.items()}
+    np.savez_compressed(RESULTS / "identify_issue_case_tracks.npz", dt=1 / rate_hz, **arrays)
+    text = markdown(rows, duration, rate_hz, horizon)
+    print(text)
+    (RESULTS / "identify_issue_case.md").write_text(text)
+    payload = {"duration_s": duration, "rate_hz": rate_hz, "horizon_s": horizon, "rows": rows}
+    write_json("identify_issue_case.json", payload)
+
+
 if __name__ == "__main__":
-    if sys.argv[1:2] == ["refit"]:
+    if sys.argv[1:2] == ["issue"]:
+        issue(*(float(a) for a in sys.argv[2:6]))
+    elif sys.argv[1:2] == ["refit"]:
         refit()
     elif sys.argv[1:2] == ["synthetic"]:
         synthetic(*(float(a) for a in sys.argv[2:3]))
