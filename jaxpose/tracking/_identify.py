@@ -119,6 +119,11 @@ SHARED_ROUNDS = 2
 from the last fit's residuals (`shared_variance_ratio`, `decorrelated`); 0 fits once with
 the registrations taken as independent."""
 
+CENTRE_FREE_STD = 2.5
+"""Standard deviation (m) of the centre of mass along a rotation axis that never moved
+(`fit_centre`'s free axis): half the largest target the estimator takes (about 5 m across);
+there the centre is pinned to the first view's tracked point, which lies on the target."""
+
 START_MIXES = 12
 """Inertia tensors each linear start tries (`inertia_candidates`), spread over half a turn in
 the span of step 1's two smallest singular vectors; the one of least cost starts the fit."""
@@ -562,43 +567,98 @@ def fit_centre(
     used: Bool[Array, " T"],
     references: Int[Array, " T"],
     shared_rounds: int = SHARED_ROUNDS,
+    motion_cov: Float[Array, "T 6 6"] | None = None,
+    free_axis: tuple[Float[Array, "3"], Bool[Array, ""], Float[Array, "3"] | None] | None = None,
 ) -> tuple[Float[Array, "6"], Float[Array, "6 6"], Float[Array, ""]]:
     """(c, v) by least squares over the measured motions keyframe j → k (step 3): the centre
     moves from c + t_j v to c + t_k v, so t_jk = (I − R_jk) c + (t_k I − t_j R_jk) v. Also its
     covariance σ̂² (AᵀA)⁻¹ times the residuals' `_design_effect` and the split check's factor
     (each half of the window solved alone, `_split_inflation`), and the residuals' RMS (m).
-    After a first solve, `shared_rounds` solves on rows decorrelated for the keyframes'
-    shared error (`shared_variance_ratio` of the last residuals, `decorrelated`), as in the
-    rotation fit; the halves use the last ratio."""
+
+    With the registrations' covariances `motion_cov` (T, 6, 6; a left rotation vector in rad,
+    then the translation in m), each frame's rows are whitened by the covariance of its
+    residual (`centre_whitening`, at the unweighted solution): a slide along a face that the
+    registration barely holds then weighs little, and a turn about the target itself, which
+    moves t_jk but not the residual, not at all. After that, `shared_rounds` solves on rows
+    decorrelated for the keyframes' shared error (`shared_variance_ratio` of the last
+    whitened residuals, `decorrelated`), as in the rotation fit; the halves use the last
+    ratio.
+
+    `free_axis` = (a, free, guess): where `free`, the rotation axis a (unit, frame c at t = 0)
+    never moved over the window, so no motion fixes the centre along it (every point of the
+    axis turns onto the axis); only the measurements' noise would, and whitened rows trust
+    that noise. There c·a is held at guess·a (the first solve's where `guess` is None), the
+    rest is fitted, and c·a's variance is `CENTRE_FREE_STD`², so the covariance says what the
+    data leave open."""
     eye = jnp.eye(3, dtype=rotations.dtype)
     R_rel = jnp.einsum("tij,tkj->tik", rotations, rotations[references])
     t_rel = translations - jnp.einsum("tij,tj->ti", R_rel, translations[references])
     t_ref = times[references]
     A = jnp.concatenate([eye[None] - R_rel, times[:, None, None] * eye[None] - t_ref[:, None, None] * R_rel], axis=2)
 
-    def solve(ratio, mask):
-        """Least squares on the rows of the frames in `mask`, decorrelated for the keyframes'
-        shared error ρ; the solution, its covariance and the raw residuals of every used frame."""
+    # Where an axis is free, x = shift + keep y: keep drops c's component along it, and shift
+    # holds that component at its guess.
+    shift, keep = jnp.zeros(6, A.dtype), jnp.eye(6, dtype=A.dtype)
+
+    def solve(ratio, mask, W):
+        """Least squares on the rows of the frames in `mask`, whitened per frame by `W` and
+        decorrelated for the keyframes' shared error ρ, in the span of `keep` about `shift`;
+        the solution, its covariance, and the whitened and raw residuals of every used frame."""
         w = mask.astype(A.dtype)[:, None, None]
-        A_m, b_m = A * w, t_rel * w[:, :, 0]
+        A_m, b_m = jnp.einsum("tij,tjk->tik", W, A) * w, jnp.einsum("tij,tj->ti", W, t_rel) * w[:, :, 0]
         A_d = jax.vmap(lambda col: decorrelated(col, mask, references, ratio), in_axes=2, out_axes=2)(A_m)
         A_d, b_d = A_d.reshape(-1, 6), decorrelated(b_m, mask, references, ratio).reshape(-1)
-        x = jnp.linalg.lstsq(A_d, b_d)[0]
+        A_k = A_d @ keep
+        x = shift + keep @ jnp.linalg.lstsq(A_k, b_d - A_d @ shift)[0]
         variance = _residual_variance((A_d @ x - b_d).reshape(-1, 3), mask, references, fitted=6)
         raw = (A.reshape(-1, 6) @ x - t_rel.reshape(-1)).reshape(-1, 3) * used[:, None]
-        return x, variance * _inverse_information(A_d.T @ A_d), raw
+        cov = variance * keep @ _inverse_information(A_k.T @ A_k) @ keep.T
+        return x, cov, jnp.einsum("tij,tj->ti", W, raw), raw
 
     ratio = jnp.zeros((), A.dtype)
-    x, cov, raw = solve(ratio, used)
+    W = jnp.broadcast_to(eye, A.shape[:1] + (3, 3)) / RESIDUAL_UNIT
+    x, cov, white, raw = solve(ratio, used, W)
+    if free_axis is not None:
+        axis, free, guess = free_axis
+        along = jnp.concatenate([axis, jnp.zeros(3, A.dtype)]) * free.astype(A.dtype)
+        keep = jnp.eye(6, dtype=A.dtype) - jnp.outer(along, along)
+        shift = (axis @ (x[:3] if guess is None else guess)) * along
+        x, cov, white, raw = solve(ratio, used, W)
+    if motion_cov is not None:
+        W = centre_whitening(motion_cov, R_rel, x, t_ref, used)
+        x, cov, white, raw = solve(ratio, used, W)
     for _ in range(shared_rounds):
-        ratio = shared_variance_ratio(raw, used, references)
-        x, cov, raw = solve(ratio, used)
-    halves = [solve(ratio, mask) for mask in _window_halves(times, used)]
+        ratio = shared_variance_ratio(white, used, references)
+        x, cov, white, raw = solve(ratio, used, W)
+    halves = [solve(ratio, mask, W) for mask in _window_halves(times, used)]
     half_x = jnp.stack([h[0] for h in halves])
     half_var = jnp.stack([jnp.diag(h[1]) for h in halves])
     cov = cov * _split_inflation(half_x, half_var)
+    if free_axis is not None:
+        cov = cov + CENTRE_FREE_STD**2 * jnp.outer(along, along)
     n = 3 * jnp.sum(used)
     return x, cov, jnp.sqrt(jnp.sum(raw**2) / jnp.maximum(n, 1))
+
+
+def centre_whitening(
+    motion_cov: Float[Array, "T 6 6"],
+    R_rel: Float[Array, "T 3 3"],
+    x: Float[Array, "6"],
+    t_ref: Float[Array, " T"],
+    used: Bool[Array, " T"],
+) -> Float[Array, "T 3 3"]:
+    """Per frame, L⁻¹ with L Lᵀ = J Σ Jᵀ the covariance (m²) of `fit_centre`'s residual
+    r = t_jk − (I − R_jk) c − (t_k I − t_j R_jk) v under the registration's covariance Σ
+    (`motion_cov`, a left rotation vector δθ in rad, then the translation δt in m: R_jk →
+    exp(δθ) R_jk, t_jk → t_jk + δt), at the solution x = (c, v): r moves by δt − [m]× δθ with
+    m = R_jk (c + t_j v), so J = [−[m]×, I]. A registration error that turns the target about
+    its centre at frame k (about c + t_k v) leaves r unchanged, and Σ's cross terms carry
+    that; a slide leaves δθ alone and moves r in full. Frames without a finite factor get
+    1 / `RESIDUAL_UNIT` (`_whitening`)."""
+    m = jnp.einsum("tij,tj->ti", R_rel, x[None, :3] + t_ref[:, None] * x[None, 3:])
+    skew = jax.vmap(lambda v: jnp.cross(jnp.eye(3, dtype=v.dtype), v))(m)  # row i: eᵢ × m, so [m]×
+    J = jnp.concatenate([-skew, jnp.broadcast_to(jnp.eye(3, dtype=m.dtype), skew.shape)], axis=2)
+    return _whitening(J @ motion_cov @ jnp.swapaxes(J, 1, 2), used)
 
 
 def _whitening(rotation_cov: Float[Array, "T 3 3"], used: Bool[Array, " T"]) -> Float[Array, "T 3 3"]:
@@ -665,6 +725,25 @@ def _excitation(rates, ok):
     return jnp.max(jnp.where(ok, angles, 0.0))
 
 
+def fixed_spin_axis(
+    camera_turn: Float[Array, "T 3 3"],
+    rotations: Float[Array, "T 3 3"],
+    axes: Float[Array, "3 3"],
+    body: Float[Array, "T 3"],
+    used: Bool[Array, " T"],
+) -> tuple[Float[Array, "3"], Bool[Array, ""]]:
+    """The fitted motion's mean rotation axis in inertial space (unit, frame c at t = 0), and
+    whether it stayed within `MIN_EXCITATION` of that mean over the used frames: the inertial
+    rate Q(t)ᵀ R(t) P ω_b(t) of the model R(t) = Q A Pᵀ (`motion_rotations`; `body` its body
+    rates ω_b in principal axes P = `axes`). Where it did, no motion fixes the centre of mass
+    along it (`fit_centre`)."""
+    spin = jnp.einsum("tji,tjk,kl,tl->ti", camera_turn, rotations, axes, body)
+    unit = spin / jnp.maximum(jnp.linalg.norm(spin, axis=1, keepdims=True), 1e-12)
+    mean = jnp.sum(unit * used[:, None], axis=0)
+    mean = mean / jnp.maximum(jnp.linalg.norm(mean), 1e-12)
+    return mean, _excitation(spin, used) < MIN_EXCITATION
+
+
 def start_windows(rate_window: int, frames: int) -> tuple[int, ...]:
     """The distinct half-widths (frames) of `START_WINDOWS` × `rate_window` that fit in
     `frames` (each needs 2h + 3 frames)."""
@@ -702,6 +781,8 @@ def identify_motion(
     max_steps: int = 200,
     shared_rounds: int = SHARED_ROUNDS,
     orbit: Orbit | None = None,
+    motion_cov: Float[Array, "T 6 6"] | None = None,
+    centre_guess: Float[Array, "3"] | None = None,
 ) -> Dynamics:
     """Identify the dynamics from measured motions (the core of [`identify`][jaxpose.identify]).
 
@@ -721,6 +802,13 @@ def identify_motion(
     - `shared_rounds`: refits for the keyframes' shared error after the first fit (static).
     - `orbit`: how the camera turns and the gravity gradient ([`Orbit`][jaxpose.Orbit]);
       None: a camera that holds an inertial attitude, torque-free.
+    - `motion_cov`: (T, 6, 6) covariances of the whole motions (a left rotation vector in rad,
+      then the translation in m), to weight the centre's residuals (`fit_centre`; default:
+      equal weights).
+    - `centre_guess`: (3,) a point of the target at t = 0 (m, frame c), where the centre of
+      mass is taken to lie along a rotation axis that never moved (a spin about a principal
+      axis, `fixed_spin_axis`), with a standard deviation of `CENTRE_FREE_STD`; default: the
+      least-squares solution's.
 
     Pure and jittable; no checks (see `identify`).
     """
@@ -729,13 +817,35 @@ def identify_motion(
     # int64 and absent references share one compiled program.
     references = jnp.zeros(times.shape[0], jnp.int32) if references is None else jnp.asarray(references, jnp.int32)
     return _identify_motion(
-        times, rotations, translations, valid, references, rotation_cov, rate_window, max_steps, shared_rounds, orbit
+        times,
+        rotations,
+        translations,
+        valid,
+        references,
+        rotation_cov,
+        rate_window,
+        max_steps,
+        shared_rounds,
+        orbit,
+        motion_cov,
+        centre_guess,
     )
 
 
 @eqx.filter_jit
 def _identify_motion(
-    times, rotations, translations, valid, references, rotation_cov, rate_window, max_steps, shared_rounds, orbit
+    times,
+    rotations,
+    translations,
+    valid,
+    references,
+    rotation_cov,
+    rate_window,
+    max_steps,
+    shared_rounds,
+    orbit,
+    motion_cov=None,
+    centre_guess=None,
 ) -> Dynamics:
     """`identify_motion` with the orbit given (an inertial camera is `Orbit.inertial()`), so
     that both kinds of camera share one compiled program."""
@@ -829,9 +939,13 @@ def _identify_motion(
         data, axes, moments, omega, ratio, halves, scales[-2:]
     )
     cov_attitude = cov_attitude * _split_inflation(half_ratios, half_variances)
-    centre, cov_centre, centre_rms = fit_centre(times, rotations, translations, used, references, shared_rounds)
+    model_rotations, body = _integrate(axes, moments, omega, times, orbit)
+    excitation = _excitation(body, used)
+    axis, free = fixed_spin_axis(orbit.camera_turn(times), model_rotations, axes, body, used)
+    centre, cov_centre, centre_rms = fit_centre(
+        times, rotations, translations, used, references, shared_rounds, motion_cov, (axis, free, centre_guess)
+    )
     covariance = jax.scipy.linalg.block_diag(cov_attitude, cov_centre)
-    excitation = _excitation(_integrate(axes, moments, omega, times, orbit)[1], used)
     ratio_std = jnp.sqrt(jnp.maximum(jnp.diag(cov_attitude)[3:5], 0.0)) / moments[:2]
     finite = jnp.all(jnp.isfinite(covariance)) & jnp.all(jnp.isfinite(theta))
     physical = jnp.sum(moments[:2]) >= 1 - TRIANGLE_TOL
@@ -932,10 +1046,22 @@ def identify_tracked(
     times = jnp.arange(T, dtype=rotations.dtype) * jnp.asarray(dt, rotations.dtype)
     translations = jnp.where(finite[:, None], translations, 0.0)
     rotations = jnp.where(finite[:, None, None], rotations, jnp.eye(3, dtype=rotations.dtype)[None])
-    rotation_cov = None if measurement_cov is None else jnp.asarray(measurement_cov, rotations.dtype)[:, :3, :3]
+    motion_cov = None if measurement_cov is None else jnp.asarray(measurement_cov, rotations.dtype)
+    rotation_cov = None if motion_cov is None else motion_cov[:, :3, :3]
     references = jnp.asarray(keyframes, jnp.int32)
     return identify_motion(
-        times, rotations, translations, valid, references, rotation_cov, half, max_steps, shared_rounds, orbit
+        times,
+        rotations,
+        translations,
+        valid,
+        references,
+        rotation_cov,
+        half,
+        max_steps,
+        shared_rounds,
+        orbit,
+        motion_cov,
+        points[0],
     )
 
 
