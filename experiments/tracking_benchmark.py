@@ -26,8 +26,9 @@ separately). Per family and overall: median, p90 and max.
           results/tracking_issue_case_model.{json,md}: each run against the model, and
           results/tracking_issue_case_identified.{json,md}: each run's registrations through
           `identify` (as `identified` below)
-    uv run python experiments/tracking_benchmark.py registrations
-        → results/tracking_registrations.{json,md}: the saved registrations' rotation errors
+    uv run python experiments/tracking_benchmark.py registrations [name]
+        → results/tracking_registrations.{json,md} (or <name>_registrations.*, e.g. for
+          tracking_issue_case): the saved registrations' rotation errors
           (keyframe → k against the truth), successes apart from those motion continuity
           accepted (weak or ambiguous estimates), per family and noise level
     uv run python experiments/tracking_benchmark.py refilter '{"accel_noise": 1e-3}' [name]
@@ -35,8 +36,9 @@ separately). Per family and overall: median, p90 and max.
           default run (`results/tracking_benchmark_chains.npz`) through `filter_keyframes`
           with other options; the registrations, so their statuses, counts and times, are
           those of the saved run.
-    uv run python experiments/tracking_benchmark.py sweep
-        → results/tracking_refilter_sweep.{json,md}: the saved registrations of the last
+    uv run python experiments/tracking_benchmark.py sweep [name]
+        → results/tracking_refilter_sweep.{json,md} (or <name>_refilter_sweep.*, e.g. for
+          tracking_issue_case): the saved registrations of the last
           default run through `filter_keyframes` with each of `SWEEP`'s settings (one option
           moved from the default at a time, and a floor added to every measurement's
           covariance), rate and attitude errors at the end: how much the filter's tuning
@@ -253,10 +255,12 @@ def saved_tumbles(name: str = "tracking_benchmark") -> tuple[dict, list[dict]]:
     return benchmark, [{field: saved[field][i] for field in fields} for i in range(len(benchmark["rows"]))]
 
 
-def registration_errors() -> None:
-    """Rotation errors (°) of the saved registrations keyframe → k against the truth, the
-    successes apart from the frames motion continuity accepted → `tracking_registrations.*`."""
-    benchmark, tumbles = saved_tumbles()
+def registration_errors(name: str = "tracking_benchmark") -> None:
+    """Rotation errors (°) of a run's saved registrations keyframe → k against the truth (`name`:
+    the last default run, or e.g. `tracking_issue_case`), the successes apart from the frames
+    motion continuity accepted → `tracking_registrations.*` (`<name>_registrations.*` for
+    another run)."""
+    benchmark, tumbles = saved_tumbles(name)
     out = []
     for row, tumble in zip(benchmark["rows"], tumbles, strict=True):
         chain, R = chain_of_track(tumble), tumble["truth"]
@@ -269,16 +273,16 @@ def registration_errors() -> None:
             {
                 **{key: row[key] for key in ("tumble", "family", "sigma_cm")},
                 **{
-                    f"{name}_frames": int(mask.sum())
-                    for name, mask in (("success", success), ("continuity", continuity))
+                    f"{kind}_frames": int(mask.sum())
+                    for kind, mask in (("success", success), ("continuity", continuity))
                 },
                 **{
-                    f"{name}_error_median_deg": float(np.median(error[mask])) if mask.any() else None
-                    for name, mask in (("success", success), ("continuity", continuity))
+                    f"{kind}_error_median_deg": float(np.median(error[mask])) if mask.any() else None
+                    for kind, mask in (("success", success), ("continuity", continuity))
                 },
                 **{
-                    f"{name}_error_max_deg": float(error[mask].max()) if mask.any() else None
-                    for name, mask in (("success", success), ("continuity", continuity))
+                    f"{kind}_error_max_deg": float(error[mask].max()) if mask.any() else None
+                    for kind, mask in (("success", success), ("continuity", continuity))
                 },
             }
         )
@@ -294,8 +298,9 @@ def registration_errors() -> None:
         for r in out
     )
     print(table)
-    write_json("tracking_registrations.json", {"rows": out})
-    (RESULTS / "tracking_registrations.md").write_text(table + "\n")
+    out_name = "tracking_registrations" if name == "tracking_benchmark" else f"{name}_registrations"
+    write_json(f"{out_name}.json", {"source": name, "rows": out})
+    (RESULTS / f"{out_name}.md").write_text(table + "\n")
 
 
 def refiltered(tumbles: list[dict], rate_hz: float, options: dict, floor_deg: float = 0.0) -> list[dict]:
@@ -678,11 +683,13 @@ def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
     return eqx.tree_at(lambda c: c.relative_cov, chain, chain.relative_cov + floor)
 
 
-def sweep() -> None:
-    """The saved registrations of the last default run through `filter_keyframes` with each of
-    `SWEEP`'s settings → `tracking_refilter_sweep.{json,md}`: per setting, the rate error at
-    the end (°/s: median, p90, max over the tumbles) and the median attitude error (°)."""
-    benchmark, tumbles = saved_tumbles()
+def sweep(name: str = "tracking_benchmark") -> None:
+    """The saved registrations of a run (`name`: the last default run, or e.g.
+    `tracking_issue_case`) through `filter_keyframes` with each of `SWEEP`'s settings →
+    `tracking_refilter_sweep.{json,md}` (`<name>_refilter_sweep.*` for another run): per
+    setting, the rate error at the end (°/s: median, p90, max over the tumbles) and the median
+    attitude error (°)."""
+    benchmark, tumbles = saved_tumbles(name)
     rate_hz = benchmark["rate_hz"]
     rows = []
     for setting in SWEEP:
@@ -703,21 +710,21 @@ def sweep() -> None:
             }
         )
     lines = [
-        f"The registrations of `tracking_benchmark.json` ({len(tumbles)} tumbles) filtered again, "
-        "one setting moved at a time.",
+        f"The registrations of `{name}.json` ({len(tumbles)} tumbles) filtered again, one setting moved at a time.",
         "",
         "| setting | rate error at the end, °/s: median / p90 / max | attitude error median, ° | non-finite |",
         "|---|---|---|---|",
     ]
     for r in rows:
-        name = ", ".join(f"{k}={v}" for k, v in r["setting"].items()) or "default"
+        label = ", ".join(f"{k}={v}" for k, v in r["setting"].items()) or "default"
         e = r["rate_error_deg_s"]
         rate = f"{e['median']:.3f} / {e['p90']:.3f} / {e['max']:.3f}"
-        lines.append(f"| {name} | {rate} | {r['attitude_error_deg_median']:.3f} | {r['non_finite']} |")
+        lines.append(f"| {label} | {rate} | {r['attitude_error_deg_median']:.3f} | {r['non_finite']} |")
     table = "\n".join(lines) + "\n"
     print(table)
-    write_json("tracking_refilter_sweep.json", {"rows": rows})
-    (RESULTS / "tracking_refilter_sweep.md").write_text(table)
+    out = "tracking_refilter_sweep" if name == "tracking_benchmark" else f"{name}_refilter_sweep"
+    write_json(f"{out}.json", {"source": name, "rows": rows})
+    (RESULTS / f"{out}.md").write_text(table)
 
 
 REACH_BINS_DEG = (0, 2, 4, 6, 8, 10, 12, 15, 20, 30, 180)
@@ -901,12 +908,12 @@ def main(
 if __name__ == "__main__":
     if sys.argv[1:] == ["summarise"]:
         resummarise()
-    elif sys.argv[1:] == ["registrations"]:
-        registration_errors()
+    elif sys.argv[1:2] == ["registrations"]:
+        registration_errors(*sys.argv[2:3])
     elif sys.argv[1:2] == ["refilter"]:
         refilter(json.loads(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "options")
-    elif sys.argv[1:] == ["sweep"]:
-        sweep()
+    elif sys.argv[1:2] == ["sweep"]:
+        sweep(*sys.argv[2:3])
     elif sys.argv[1:2] == ["identified"]:
         identified(*sys.argv[2:3])
     elif sys.argv[1:2] == ["model"]:
