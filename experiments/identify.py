@@ -27,6 +27,8 @@ A fifth case spins N5 about a principal axis: `observable` must be False.
 The tracks (each frame's chained motion, keyframe, registration flag and covariance) and the
 true motions go to `results/identify_tracks.npz`, so that `identify` can be studied again
 without tracking (`uv run python experiments/identify.py refit` → `results/identify_refit.{json,md}`).
+`uv run python experiments/identify.py perturb [case]` → `results/identify_perturb.{json,md}`
+refits one case's saved tracks with its rotations scaled by 1 + ε (round-off sized).
 `uv run python experiments/identify.py synthetic [sigma_deg]` → `results/identify_synthetic.{json,md}`
 fits the true motions with white rotation noise, each frame measured from the first
 (`synthetic`).
@@ -34,6 +36,7 @@ fits the true motions with white rotation noise, each frame measured from the fi
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 import time
@@ -94,6 +97,19 @@ def edge_point(cloud: jp.Cloud, centre: np.ndarray) -> np.ndarray:
     return pts[np.argmax(np.linalg.norm(pts - centre[None], axis=1))]
 
 
+def edge_prediction(first: jp.Cloud, tumble: Tumble, dyn: jp.Dynamics, end: float):
+    """The first cloud's edge point (`edge_point`, m, frame c at t = 0), where it truly is at
+    time `end` (s since the first frame), and where `dyn.predict_point` puts it, with that
+    prediction's standard deviations (m, frame c)."""
+    G, positions, *_ = truth(tumble, jnp.asarray([0.0, end]))
+    centre = np.asarray(positions[0])
+    point = edge_point(first, centre)
+    R_end = np.asarray(G[1]) @ np.asarray(G[0]).T
+    true_point = R_end @ (point - centre) + np.asarray(positions[1])
+    predicted, std = dyn.predict_point(jnp.asarray(point), jnp.asarray([end]))
+    return point, true_point, np.asarray(predicted[0]), np.asarray(std[0])
+
+
 def constant_rate(track: jp.Track, point: np.ndarray, horizon: float, dt: float) -> np.ndarray:
     """Where constant-rate extrapolation of the filter's last state puts `point` (frame c at
     t = 0) `horizon` seconds past the last frame."""
@@ -105,13 +121,19 @@ def constant_rate(track: jp.Track, point: np.ndarray, horizon: float, dt: float)
     return turn @ (now - p) + p + v * horizon
 
 
-def one_case(case: str, index: int, duration: float, rate_hz: float, horizon: float) -> dict:
+def simulated(case: str, index: int, duration: float, rate_hz: float):
+    """Case `case`'s tumble and its simulated sequence, from the keys of `index`."""
     key = jax.random.key(2000 + index)
     family = "n5" if case.startswith("n5") else case.removesuffix("_orbital")
     target = getattr(jp.targets, family)()
     tumble = make_tumble(case, jax.random.fold_in(key, 0))
     camera = jp.Camera.camcube2(noise_sigma=0.01, noise_range_ref=5.0)
-    seq = simulate_sequence(camera, target, tumble, duration, rate_hz, key=jax.random.fold_in(key, 1))
+    return tumble, simulate_sequence(camera, target, tumble, duration, rate_hz, key=jax.random.fold_in(key, 1))
+
+
+def one_case(case: str, index: int, duration: float, rate_hz: float, horizon: float) -> dict:
+    key = jax.random.key(2000 + index)
+    tumble, seq = simulated(case, index, duration, rate_hz)
     clouds = jax.block_until_ready(seq.clouds)
     dt = 1 / rate_hz
     t0 = time.perf_counter()
@@ -125,10 +147,7 @@ def one_case(case: str, index: int, duration: float, rate_hz: float, horizon: fl
     end = float(seq.times[-1]) + horizon
     G, positions, axes, moments, omega = truth(tumble, jnp.asarray([0.0, end]))
     centre = np.asarray(positions[0])
-    point = edge_point(jax.tree.map(lambda x: x[0], clouds), centre)
-    R_end = np.asarray(G[1]) @ np.asarray(G[0]).T
-    true_point = R_end @ (point - centre) + np.asarray(positions[1])
-    predicted, std = dyn.predict_point(jnp.asarray(point), jnp.asarray([end]))
+    point, true_point, predicted, std = edge_prediction(jax.tree.map(lambda x: x[0], clouds), tumble, dyn, end)
     extrapolated = constant_rate(track, point, horizon, dt)
     cosines = np.abs(np.sum(np.asarray(dyn.principal_axes) * axes, axis=0))
     ratio_std = np.sqrt(np.diag(np.asarray(dyn.covariance)))[3:5]
@@ -148,8 +167,8 @@ def one_case(case: str, index: int, duration: float, rate_hz: float, horizon: fl
         "frames_used": int(dyn.frames),
         "frames": int(seq.times.shape[0]),
         "edge_distance_m": float(np.linalg.norm(point - centre)),
-        "prediction_error_cm": 100 * float(np.linalg.norm(np.asarray(predicted[0]) - true_point)),
-        "prediction_std_cm": (100 * np.asarray(std[0])).tolist(),
+        "prediction_error_cm": 100 * float(np.linalg.norm(predicted - true_point)),
+        "prediction_std_cm": (100 * std).tolist(),
         "constant_rate_error_cm": 100 * float(np.linalg.norm(extrapolated - true_point)),
         "track_s": track_s,
         "identify_s": identify_s,
@@ -242,9 +261,12 @@ def refit(**options) -> list[dict]:
     """`identify` again on the tracks saved by the last run (`results/identify_tracks.npz`),
     with `identify_tracked`'s `options`: the ratios' relative errors (%), the axes' errors (°),
     the centre's error (cm) and, per camera axis, the centre's error and standard deviation
-    (cm) and their ratio (z), and the fit's and the truth's least-squares costs (`fit_costs`)
-    per case → `results/identify_refit.{json,md}`."""
+    (cm) and their ratio (z), the edge point's prediction error `horizon_s` past the data (cm;
+    the first cloud simulated again from the run's keys), and the fit's and the truth's
+    least-squares costs (`fit_costs`) per case → `results/identify_refit.{json,md}`."""
     saved = np.load(RESULTS / "identify_tracks.npz")
+    run = json.loads((RESULTS / "identify.json").read_text())
+    duration, rate_hz, horizon = run["duration_s"], run["rate_hz"], run["horizon_s"]
     rows = []
     for index, case in enumerate(CASES):
 
@@ -264,8 +286,10 @@ def refit(**options) -> list[dict]:
         cosines = np.abs(np.sum(np.asarray(dyn.principal_axes) * axes, axis=0))
         centre_error = 100 * (np.asarray(dyn.centre) - get("true_centre"))
         centre_std = 100 * np.sqrt(np.diag(np.asarray(dyn.covariance))[8:11])
-        tumble = make_tumble(case, jax.random.fold_in(jax.random.key(2000 + index), 0))
+        tumble, seq = simulated(case, index, duration, rate_hz)
         cost_fit, cost_truth = fit_costs(get, float(saved["dt"]), dyn, tumble)
+        first = jax.tree.map(lambda x: x[0], seq.clouds)
+        point, true_point, predicted, _ = edge_prediction(first, tumble, dyn, float(seq.times[-1]) + horizon)
         rows.append(
             {
                 "case": case,
@@ -279,6 +303,8 @@ def refit(**options) -> list[dict]:
                 "centre_std_cm": centre_std.astype(float).round(2).tolist(),
                 "centre_z": (np.abs(centre_error) / centre_std).astype(float).round(1).tolist(),
                 "observable": bool(dyn.observable),
+                "prediction_error_cm": round(100 * float(np.linalg.norm(predicted - true_point)), 2),
+                "edge_distance_m": float(np.linalg.norm(point - get("true_centre"))),
                 "cost_fit": round(cost_fit, 1),
                 "cost_truth": round(cost_truth, 1),
                 "residuals": 3 * int(dyn.frames),
@@ -289,18 +315,69 @@ def refit(**options) -> list[dict]:
         "`identify` on the tracks of `results/identify_tracks.npz` (`identify.py refit`). Centre of mass per camera "
         "axis: error / standard deviation, cm, and |error| / std. Cost: the least-squares cost that `identify` "
         "minimises (whitened residuals, decorrelated with the fit's shared-error ratio) at the fit and at the true "
-        "dynamics, over that many residuals.\n\n"
+        "dynamics, over that many residuals. Edge point: the first cloud's point farthest from the centre, predicted "
+        "`horizon_s` past the data (the clouds simulated again from the run's keys).\n\n"
         "| case | ratio errors % | axis errors ° | centre cm | centre error, cm | centre std, cm | z | observable | "
-        "cost: fit / truth (residuals) |\n"
-        "|---|---|---|---|---|---|---|---|---|\n"
+        f"edge point at +{horizon:g} s, cm | cost: fit / truth (residuals) |\n"
+        "|---|---|---|---|---|---|---|---|---|---|\n"
     )
     lines = [
         f"| {r['case']} | {listed(r['ratio_error_pct'])} | {listed(r['axis_error_deg'])} | {r['centre_error_cm']:g} | "
         f"{listed(r['centre_axis_error_cm'])} | {listed(r['centre_std_cm'])} | {listed(r['centre_z'])} | "
-        f"{r['observable']} | {r['cost_fit']:.0f} / {r['cost_truth']:.0f} ({r['residuals']}) |"
+        f"{r['observable']} | {r['prediction_error_cm']:.2f} | {r['cost_fit']:.0f} / {r['cost_truth']:.0f} "
+        f"({r['residuals']}) |"
         for r in rows
     ]
     write_table("identify_refit", head, lines, {"rows": rows})
+    return rows
+
+
+PERTURBATIONS = (0.0, 1e-7, -1e-7, 3e-7)
+"""`perturb`'s relative scalings of the saved rotations: round-off-sized changes of the data."""
+
+
+def perturb(case: str = "chibis_m") -> list[dict]:
+    """`identify` on one case's saved tracks (`results/identify_tracks.npz`) with the rotations
+    scaled by 1 + ε for each ε of `PERTURBATIONS`: the ratios' relative errors and standard
+    deviations (%) and the fit's and the truth's least-squares costs (`fit_costs`), so how far
+    round-off moves the fit along the cost's valley → `results/identify_perturb.{json,md}`."""
+    saved = np.load(RESULTS / "identify_tracks.npz")
+    index = CASES.index(case)
+    tumble = make_tumble(case, jax.random.fold_in(jax.random.key(2000 + index), 0))
+    rows = []
+    for eps in PERTURBATIONS:
+
+        def get(name, eps=eps):
+            value = saved[f"{case}/{name}"]
+            return value * (1 + eps) if name == "rotations" else value
+
+        fields = ("rotations", "points", "registered", "keyframes", "measurement_cov")
+        dyn = identify_tracked(*(get(n) for n in fields), float(saved["dt"]))
+        cost_fit, cost_truth = fit_costs(get, float(saved["dt"]), dyn, tumble)
+        true = get("true_ratios")
+        rows.append(
+            {
+                "case": case,
+                "epsilon": eps,
+                "ratio_error_pct": (100 * (np.asarray(dyn.inertia_ratios, float) / true - 1)).round(2).tolist(),
+                "ratio_std_pct": (100 * np.sqrt(np.diag(np.asarray(dyn.covariance, float)))[3:5] / true)
+                .round(2)
+                .tolist(),
+                "cost_fit": round(cost_fit, 1),
+                "cost_truth": round(cost_truth, 1),
+            }
+        )
+        print(rows[-1], flush=True)
+    head = (
+        f"`identify` on {case}'s saved tracks with the rotations scaled by 1 + ε (`identify.py perturb {case}`).\n\n"
+        "| ε | ratio errors % | ratio std % | cost: fit / truth |\n|---|---|---|---|\n"
+    )
+    lines = [
+        f"| {r['epsilon']:g} | {listed(r['ratio_error_pct'])} | {listed(r['ratio_std_pct'])} | "
+        f"{r['cost_fit']:.1f} / {r['cost_truth']:.1f} |"
+        for r in rows
+    ]
+    write_table("identify_perturb", head, lines, {"rows": rows})
     return rows
 
 
@@ -404,6 +481,8 @@ if __name__ == "__main__":
         issue(*(float(a) for a in sys.argv[2:6]))
     elif sys.argv[1:2] == ["refit"]:
         refit()
+    elif sys.argv[1:2] == ["perturb"]:
+        perturb(*sys.argv[2:3])
     elif sys.argv[1:2] == ["synthetic"]:
         synthetic(*(float(a) for a in sys.argv[2:3]))
     elif sys.argv[1:2] == ["orbital"]:

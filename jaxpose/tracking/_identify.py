@@ -662,8 +662,9 @@ def centre_whitening(
 
 
 def _whitening(rotation_cov: Float[Array, "T 3 3"], used: Bool[Array, " T"]) -> Float[Array, "T 3 3"]:
-    """Per frame, L⁻¹ with L Lᵀ the rotation covariance (rad²); 1 / `RESIDUAL_UNIT` where a
-    frame is not used or its covariance has no finite factor."""
+    """Per frame, L⁻¹ with L Lᵀ a residual's covariance (rad² for the rotation residuals, m²
+    for the centre's, `centre_whitening`); 1 / `RESIDUAL_UNIT` where a frame is not used or its
+    covariance has no finite factor."""
     eye = jnp.eye(3, dtype=rotation_cov.dtype)
     sym = (rotation_cov + jnp.swapaxes(rotation_cov, 1, 2)) / 2
     floor = 1e-12 + 1e-9 * jnp.trace(sym, axis1=1, axis2=2)
