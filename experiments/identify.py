@@ -22,7 +22,7 @@ A fifth case spins N5 about a principal axis: `observable` must be False.
     uv run python experiments/identify.py orbital [duration_s] [rate_hz] [horizon_s]  →  results/identify_orbital.*
     uv run python experiments/identify.py issue [runs] [duration_s] [rate_hz] [horizon_s]
         →  results/identify_issue_case.*  (issue 25's own N5 tumble, moments 1 : 1.4 : 1.9,
-        `runs` noise draws; `ISSUE_CASE`)
+        `runs` noise draws; `ISSUE_CASE`; identify_issue_case_<duration>s.* for another window)
 
 The tracks (each frame's chained motion, keyframe, registration flag and covariance) and the
 true motions go to `results/identify_tracks.npz`, so that `identify` can be studied again
@@ -464,16 +464,18 @@ def main(duration: float = 60.0, rate_hz: float = 25.0, horizon: float = 10.0, c
 
 def issue(runs: int = 3, duration: float = 60.0, rate_hz: float = 25.0, horizon: float = 10.0) -> None:
     """Issue 25's tumble (`ISSUE_CASE`) with `runs` independent noise draws (the keys of
-    indices 0 … runs − 1) → `results/identify_issue_case.{json,md}` and its tracks."""
+    indices 0 … runs − 1) → `results/identify_issue_case.{json,md}` and its tracks
+    (`identify_issue_case_<duration>s.*` for a window other than 60 s)."""
+    name = "identify_issue_case" if duration == 60.0 else f"identify_issue_case_{duration:g}s"
     results = [one_case(ISSUE_CASE, i, duration, rate_hz, horizon) for i in range(int(runs))]
     rows = [{**row, "case": f"{ISSUE_CASE} #{i}"} for i, (row, _) in enumerate(results)]
     arrays = {f"{i}/{k}": v for i, (_, saved) in enumerate(results) for k, v in saved.items()}
-    np.savez_compressed(RESULTS / "identify_issue_case_tracks.npz", dt=1 / rate_hz, **arrays)
+    np.savez_compressed(RESULTS / f"{name}_tracks.npz", dt=1 / rate_hz, **arrays)
     text = markdown(rows, duration, rate_hz, horizon)
     print(text)
-    (RESULTS / "identify_issue_case.md").write_text(text)
+    (RESULTS / f"{name}.md").write_text(text)
     payload = {"duration_s": duration, "rate_hz": rate_hz, "horizon_s": horizon, "rows": rows}
-    write_json("identify_issue_case.json", payload)
+    write_json(f"{name}.json", payload)
 
 
 if __name__ == "__main__":
