@@ -52,7 +52,7 @@ def summary(rows: list[dict]) -> dict:
     return {
         "found": sum(r["found"] for r in rows),
         "among": sum(r["among"] for r in rows),
-        "false_success": sum((not r["found"]) and r["status"] == "success" for r in rows),
+        "false_success": sum(map(capture.false_success, rows)),
         "n5_all_equivalents": sum(bool(r["all_equivalents"]) for r in rows if r["target"] == "n5"),
         "median_s": statistics.median(r["seconds"] for r in rows),
         "errors": group_errors(rows),

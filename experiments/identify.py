@@ -83,6 +83,11 @@ def make_tumble(case: str, key) -> Tumble:
     return base
 
 
+def case_tumble(case: str, index: int) -> Tumble:
+    """Case `case`'s tumble drawn from the keys of `index` (as every run of this script draws it)."""
+    return make_tumble(case, jax.random.fold_in(jax.random.key(2000 + index), 0))
+
+
 def truth(tumble: Tumble, times):
     G, positions, rates = tumble_poses(tumble, times)
     moments = np.diag(np.asarray(tumble.inertia))
@@ -97,11 +102,11 @@ def edge_point(cloud: jp.Cloud, centre: np.ndarray) -> np.ndarray:
     return pts[np.argmax(np.linalg.norm(pts - centre[None], axis=1))]
 
 
-def edge_prediction(first: jp.Cloud, tumble: Tumble, dyn: jp.Dynamics, end: float):
+def edge_prediction(first: jp.Cloud, G, positions, dyn: jp.Dynamics, end: float):
     """The first cloud's edge point (`edge_point`, m, frame c at t = 0), where it truly is at
     time `end` (s since the first frame), and where `dyn.predict_point` puts it, with that
-    prediction's standard deviations (m, frame c)."""
-    G, positions, *_ = truth(tumble, jnp.asarray([0.0, end]))
+    prediction's standard deviations (m, frame c). `G`, `positions`: the true attitudes and
+    centres at times (0, `end`) (`truth`)."""
     centre = np.asarray(positions[0])
     point = edge_point(first, centre)
     R_end = np.asarray(G[1]) @ np.asarray(G[0]).T
@@ -126,7 +131,7 @@ def simulated(case: str, index: int, duration: float, rate_hz: float):
     key = jax.random.key(2000 + index)
     family = "n5" if case.startswith("n5") else case.removesuffix("_orbital")
     target = getattr(jp.targets, family)()
-    tumble = make_tumble(case, jax.random.fold_in(key, 0))
+    tumble = case_tumble(case, index)
     camera = jp.Camera.camcube2(noise_sigma=0.01, noise_range_ref=5.0)
     return tumble, simulate_sequence(camera, target, tumble, duration, rate_hz, key=jax.random.fold_in(key, 1))
 
@@ -147,7 +152,8 @@ def one_case(case: str, index: int, duration: float, rate_hz: float, horizon: fl
     end = float(seq.times[-1]) + horizon
     G, positions, axes, moments, omega = truth(tumble, jnp.asarray([0.0, end]))
     centre = np.asarray(positions[0])
-    point, true_point, predicted, std = edge_prediction(jax.tree.map(lambda x: x[0], clouds), tumble, dyn, end)
+    first = jax.tree.map(lambda x: x[0], clouds)
+    point, true_point, predicted, std = edge_prediction(first, G, positions, dyn, end)
     extrapolated = constant_rate(track, point, horizon, dt)
     cosines = np.abs(np.sum(np.asarray(dyn.principal_axes) * axes, axis=0))
     ratio_std = np.sqrt(np.diag(np.asarray(dyn.covariance)))[3:5]
@@ -289,7 +295,9 @@ def refit(**options) -> list[dict]:
         tumble, seq = simulated(case, index, duration, rate_hz)
         cost_fit, cost_truth = fit_costs(get, float(saved["dt"]), dyn, tumble)
         first = jax.tree.map(lambda x: x[0], seq.clouds)
-        point, true_point, predicted, _ = edge_prediction(first, tumble, dyn, float(seq.times[-1]) + horizon)
+        end = float(seq.times[-1]) + horizon
+        G, positions, *_ = truth(tumble, jnp.asarray([0.0, end]))
+        point, true_point, predicted, _ = edge_prediction(first, G, positions, dyn, end)
         rows.append(
             {
                 "case": case,
@@ -343,7 +351,7 @@ def perturb(case: str = "chibis_m") -> list[dict]:
     round-off moves the fit along the cost's valley → `results/identify_perturb.{json,md}`."""
     saved = np.load(RESULTS / "identify_tracks.npz")
     index = CASES.index(case)
-    tumble = make_tumble(case, jax.random.fold_in(jax.random.key(2000 + index), 0))
+    tumble = case_tumble(case, index)
     rows = []
     for eps in PERTURBATIONS:
 
@@ -385,7 +393,7 @@ def synthetic_row(case: str, index: int, times, noise_vectors: np.ndarray, first
     """One case of `synthetic`: the true motions turned by `noise_vectors` (T, 3) (rad), the
     first frame's set to zero where `first` is "exact"."""
     T = times.shape[0]
-    tumble = make_tumble(case, jax.random.fold_in(jax.random.key(2000 + index), 0))
+    tumble = case_tumble(case, index)
     G, _, axes, ratios, omega = truth(tumble, times)
     vectors = jnp.asarray(noise_vectors, jnp.float32)
     vectors = vectors.at[0].set(0.0) if first == "exact" else vectors

@@ -255,6 +255,12 @@ def saved_tumbles(name: str = "tracking_benchmark") -> tuple[dict, list[dict]]:
     return benchmark, [{field: saved[field][i] for field in fields} for i in range(len(benchmark["rows"]))]
 
 
+def derived_name(source: str, kind: str) -> str:
+    """The results name of a study (`kind`) of a saved run `source`: `tracking_<kind>` for the
+    last default run (`tracking_benchmark`), `<source>_<kind>` for another."""
+    return f"tracking_{kind}" if source == "tracking_benchmark" else f"{source}_{kind}"
+
+
 def registration_errors(name: str = "tracking_benchmark") -> None:
     """Rotation errors (°) of a run's saved registrations keyframe → k against the truth (`name`:
     the last default run, or e.g. `tracking_issue_case`), the successes apart from the frames
@@ -298,7 +304,7 @@ def registration_errors(name: str = "tracking_benchmark") -> None:
         for r in out
     )
     print(table)
-    out_name = "tracking_registrations" if name == "tracking_benchmark" else f"{name}_registrations"
+    out_name = derived_name(name, "registrations")
     write_json(f"{out_name}.json", {"source": name, "rows": out})
     (RESULTS / f"{out_name}.md").write_text(table + "\n")
 
@@ -722,7 +728,7 @@ def sweep(name: str = "tracking_benchmark") -> None:
         lines.append(f"| {label} | {rate} | {r['attitude_error_deg_median']:.3f} | {r['non_finite']} |")
     table = "\n".join(lines) + "\n"
     print(table)
-    out = "tracking_refilter_sweep" if name == "tracking_benchmark" else f"{name}_refilter_sweep"
+    out = derived_name(name, "refilter_sweep")
     write_json(f"{out}.json", {"source": name, "rows": rows})
     (RESULTS / f"{out}.md").write_text(table)
 
