@@ -24,8 +24,8 @@ Reported per scale and noise level: found (< 1° and < 5 cm), successes, false s
 (success but not found), refusals of a found result (status low score while found), median
 errors; per pair the sampling step and the cell used.
 
-    uv run --extra peers python experiments/target_scale.py [pairs] [scales] [levels]
-        → results/target_scale.{json,md}   (defaults: 3, 0.3,2,3, 0,1)
+    uv run --extra peers python experiments/target_scale.py [pairs] [scales] [levels] [name]
+        → results/<name>.{json,md}   (defaults: 3, 0.3,2,3, 0,1, target_scale)
 """
 
 from __future__ import annotations
@@ -156,6 +156,7 @@ def main():
     pairs = int(sys.argv[1]) if len(sys.argv) > 1 else 3
     scales = tuple(float(x) for x in sys.argv[2].split(",")) if len(sys.argv) > 2 else (0.3, 2.0, 3.0)
     levels = tuple(float(x) for x in sys.argv[3].split(",")) if len(sys.argv) > 3 else (0.0, 1.0)
+    out_name = sys.argv[4] if len(sys.argv) > 4 else "target_scale"
     command = "uv run --extra peers python experiments/target_scale.py " + " ".join(sys.argv[1:])
     rows = []
     for s in scales:
@@ -176,8 +177,8 @@ def main():
                         flush=True,
                     )
     summ = summary(rows)
-    write_json("target_scale.json", {"command": command, "summary": summ, "rows": rows})
-    (RESULTS / "target_scale.md").write_text(markdown(summ, command))
+    write_json(f"{out_name}.json", {"command": command, "summary": summ, "rows": rows})
+    (RESULTS / f"{out_name}.md").write_text(markdown(summ, command))
     print(markdown(summ, command))
 
 

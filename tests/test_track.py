@@ -407,6 +407,28 @@ def test_a_weak_estimate_is_accepted_within_the_extrapolation_error(predicted_de
     assert bool(ok) == resolved
 
 
+@pytest.mark.parametrize(
+    ("fits_deg", "predicted_deg", "spread_deg", "chosen", "resolved"),
+    [
+        ([0.0, 15.0], 1.5, 0.6, 0, True),  # within 3 standard deviations, the other fit 9× as far
+        ([0.0, 15.0], 1.5, 0.4, 0, False),  # beyond them
+        ([0.0, 15.0], 13.5, 5.0, 1, True),  # the alternative; the gate stops at WEAK_MAX_DEG
+        ([0.0, 15.0], 11.0, 5.0, 1, False),  # 4° from the nearest: beyond WEAK_MAX_DEG
+        ([0.0, 3.0], 1.2, 1.0, 0, False),  # the other fit only 1.5× as far: no clear choice
+        ([0.0, 3.0], 0.4, 1.0, 0, True),  # the fixed 0.5° gate needs no clear choice
+    ],
+)
+def test_an_ambiguous_estimate_is_resolved_within_the_extrapolation_error_when_the_choice_is_clear(
+    fits_deg, predicted_deg, spread_deg, chosen, resolved
+):
+    hypotheses = _hypotheses_at(fits_deg, [True, True])
+    R_pred = jaxlie.SO3.from_z_radians(math.radians(predicted_deg)).as_matrix()
+    j, ok = continuity_choice(hypotheses, jnp.asarray(AMBIGUOUS), R_pred, jp.Config(), math.radians(spread_deg))
+    assert bool(ok) == resolved
+    if resolved:
+        assert int(j) == chosen
+
+
 def test_the_prediction_spread_grows_with_the_frames_ahead_over_the_baseline():
     """σ √(2a (1 + a)), a = (k − last) / (last − base): one frame ahead of a one-frame
     baseline 2σ, four ahead √40 σ, one ahead of a hundred-frame baseline ≈ 0.14σ; nothing

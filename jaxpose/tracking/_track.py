@@ -550,6 +550,17 @@ pattern score falls below `Thresholds.min_score` for estimates as good as the su
 refusing them all had left such tumbles without a single keyframe switch, so the motion from
 the keyframe grew until nothing registered (docs, Tracking)."""
 
+CLEAR_RATIO = 3.0
+"""An ambiguous estimate whose nearest distinct hypothesis lies beyond the fixed gate
+(`CONTINUITY_FRACTION`) is still resolved by it when it lies within the extrapolation gate
+(`WEAK_SIGMAS`, `WEAK_MAX_DEG`) and every other distinct hypothesis lies at least this many
+times as far from the prediction: the choice is then clear although the prediction has
+drifted. With the fixed gate alone, a slow tumble of the near-axisymmetric upper stage
+(the tracking benchmark's tumble 48, σ = 0.5 cm, 3.1 °/s), whose every estimate was
+ambiguous about its long axis after the first frames, registered 8 of 251 frames: the
+prediction, extrapolated from the first 0.6 s, drifted beyond 0.5° of the truth and never
+came back (docs, Tracking)."""
+
 WEAK_SIGMAS = 3.0
 """The extrapolation gate of a weak estimate: this many standard deviations of the
 prediction's extrapolation error (`prediction_spread`), at most `WEAK_MAX_DEG`. A prediction
@@ -598,7 +609,8 @@ def continuity_choice(
     predicted rotation `R_pred` (keyframe → now, camera frame). Returns (index, resolved):
 
     - ambiguous: the distinct hypothesis nearest the prediction, resolved when it lies within
-      `CONTINUITY_FRACTION` × `Thresholds.ambiguous_deg` of it;
+      `CONTINUITY_FRACTION` × `Thresholds.ambiguous_deg` of it, or within the extrapolation
+      gate below with every other distinct hypothesis `CLEAR_RATIO` times as far;
     - weak (low score, not converged or uncertain): the estimate itself (index 0), accepted
       when it lies within `WEAK_FRACTION` × `Thresholds.ambiguous_deg` of the prediction, or
       within `WEAK_SIGMAS` × `spread` (radians: the standard deviation of the prediction's
@@ -610,7 +622,10 @@ def continuity_choice(
     nearest = jnp.argmin(angle)
     gate = jnp.radians(config.thresholds.ambiguous_deg)
     extrapolation_gate = jnp.minimum(WEAK_SIGMAS * jnp.nan_to_num(jnp.asarray(spread)), jnp.radians(WEAK_MAX_DEG))
-    ambiguous = (status == AMBIGUOUS) & (angle[nearest] <= CONTINUITY_FRACTION * gate)
+    runner_up = jnp.min(jnp.where(jnp.arange(angle.shape[0]) == nearest, jnp.inf, angle))
+    clear = angle[nearest] <= CONTINUITY_FRACTION * gate
+    extrapolated = (angle[nearest] <= extrapolation_gate) & (runner_up >= CLEAR_RATIO * angle[nearest])
+    ambiguous = (status == AMBIGUOUS) & (clear | extrapolated)
     weak = ((status == LOW_SCORE) | (status == NOT_CONVERGED) | (status == UNCERTAIN)) & (
         angle[0] <= jnp.maximum(WEAK_FRACTION * gate, extrapolation_gate)
     )
