@@ -76,6 +76,7 @@ def test_the_build_uses_the_cell_at_the_boundary_and_under_jit():
     assert float(built_d(prev, curr, jnp.asarray(0.0))) == pytest.approx(0.026, rel=1e-6)
 
 
+@pytest.mark.slow
 def test_a_6_m_box_at_12_m_is_found_and_not_refused_for_a_low_score():
     """N5 scaled to 6 m across at 12 m, points ≈ 4 cm apart: with cells of 2.6 cm its faces'
     patterns break up and the call ends refused for a low score, 10 cm off; with the cell from

@@ -563,6 +563,7 @@ def test_the_boundary_passes_clouds_on_as_masked_floats():
     np.testing.assert_array_equal(np.asarray(batch.floating().points[:, :, 0]), [[1, 0, 1], [0, 1, 1]])
 
 
+@pytest.mark.slow
 def test_a_dropped_fine_result_without_a_refine_is_not_converged(paper_clouds):
     """Without a refine, a fine-stage result that is dropped leaves the search's best on coarse
     cells, which no fit converged on: `converged` is False. Here the fine stage's fit (the
