@@ -622,15 +622,17 @@ def against_gicp(name: str = "tracking_benchmark") -> None:
 
 def gicp_table(base: str = "tracking_benchmark") -> None:
     """jaxpose's chain and the GICP peer tracker on the same tumbles: the rows of the peer's
-    runs on the two draws of the run `base` (`<base>_gicp`, `<base>_from20_gicp`, written by
-    `against_gicp`) → `tracking_gicp[<suffix>].{json,md}` (the suffix: what `base` adds to
+    runs on the draws of the run `base` (`<base>_gicp`, `<base>_from20_gicp`, written by
+    `against_gicp`; and the third, `<base>_from40_gicp`, where it exists) →
+    `tracking_gicp[<suffix>].{json,md}` (the suffix: what `base` adds to
     "tracking_benchmark", e.g. "_guided"): per noise level and over all, the rate error at the end
     (median / p90 / max, °/s), the attitude error at the end (median, °), on how many tumbles
     the peer's rate error is the smaller, the median registration error keyframe → k (median
     over the tumbles of each tumble's median, °) and the median time a frame (ms); beside them,
     where `<base>[_from20]_model` exist (`against_model`), the rate error of the same tumbles
     tracked against the body-frame model."""
-    runs = (f"{base}_gicp", f"{base}_from20_gicp")
+    third = f"{base}_from40_gicp"
+    runs = (f"{base}_gicp", f"{base}_from20_gicp") + ((third,) if (RESULTS / f"{third}.json").exists() else ())
     rows = [row for name in runs for row in json.loads((RESULTS / f"{name}.json").read_text())["rows"]]
     model_files = [RESULTS / f"{base}{draw}_model.json" for draw in ("", "_from20")]
     with_model = all(f.exists() for f in model_files)
