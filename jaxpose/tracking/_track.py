@@ -633,20 +633,24 @@ def continuity_choice(
     return jnp.where(ambiguous, nearest, 0), ambiguous | weak
 
 
+def _se3(R: Float[ArrayLike, "3 3"], t: Float[ArrayLike, "3"]) -> jaxlie.SE3:
+    """The motion x ↦ R x + t as a jaxlie SE(3) element."""
+    return jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(R), t)
+
+
 def predicted_motion(before, last, keyframe, k):
     """The motion from the keyframe to frame k (camera frame, x ↦ R x + t) predicted at a
     constant rate: the screw motion from `before` to `last` (each (R, t, index) of the motion
-    from frame 0; `chain_estimates` passes the keyframe before the current one and the anchor
-    at the last registered frame (`anchored_motion`), a whole keyframe segment apart once a
-    switch has happened, so that one registration's error is divided by a long baseline),
-    carried on from `last` to
-    frame k (SE(3) log and exp, jaxlie). `keyframe` is (R, t) of the keyframe from frame 0.
-    With `before` and `last` the same frame the prediction is no motion."""
+    from frame 0; `chain_estimates` passes the keyframe before the current one and the last
+    registered frame, or the anchor there after a refused frame (`anchored_motion`), a whole
+    keyframe segment apart once a switch has happened, so that one registration's error is
+    divided by a long baseline), carried on from `last` to frame k (SE(3) log and exp,
+    jaxlie). `keyframe` is (R, t) of the keyframe from frame 0. With `before` and `last` the
+    same frame the prediction is no motion."""
     (R0, t0, k0), (R1, t1, k1), (Rk, tk) = before, last, keyframe
-    pose = lambda R, t: jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(R), t)  # noqa: E731
-    step = (pose(R1, t1) @ pose(R0, t0).inverse()).log() / jnp.maximum(k1 - k0, 1).astype(t1.dtype)
-    ahead = jaxlie.SE3.exp(step * (k - k1).astype(t1.dtype)) @ pose(R1, t1)
-    relative = ahead @ pose(Rk, tk).inverse()
+    step = (_se3(R1, t1) @ _se3(R0, t0).inverse()).log() / jnp.maximum(k1 - k0, 1).astype(t1.dtype)
+    ahead = jaxlie.SE3.exp(step * (k - k1).astype(t1.dtype)) @ _se3(R1, t1)
+    relative = ahead @ _se3(Rk, tk).inverse()
     return relative.rotation().as_matrix(), relative.translation()
 
 
@@ -658,11 +662,11 @@ and its whole error then carries into the next frame's gate. With a weight w and
 registrations of independent errors σ, the anchor's error has the standard deviation
 σ √(w / (2 − w)), 0.38 σ at 0.25, and it lags a change of the rate by (1 − w) / w = 3 frames.
 On the tracking benchmark's fragment at 1 cm of range noise (tumble 54, a third draw), the
-last registration before frame 40 was 1.3° off, the good
-estimates that followed (0.1–0.9° off) lay 1–2.9° from a prediction anchored on it, and
-every one of the remaining 211 frames was refused; from the anchor after a refusal, 228 of
-its 251 frames registered. Anchoring every prediction instead (a scratch run of the three
-draws) raised the benchmark's median rate error from 0.065 to 0.082 °/s (docs, Tracking)."""
+last registration before frame 40 was 1.3° off, the good estimates that followed (0.1–0.9°
+off) lay 1–2.9° from a prediction anchored on it, and every one of the remaining 211 frames
+was refused; from the anchor after a refusal, 228 of its 251 frames registered. Anchoring
+every prediction instead (a scratch run of the three draws) raised the benchmark's median
+rate error from 0.065 to 0.082 °/s (docs, Tracking)."""
 
 
 def anchor_weight(
@@ -687,9 +691,8 @@ def anchored_motion(predicted, registered, weight: Float[ArrayLike, ""] = ANCHOR
     """The prediction's anchor at a registered frame: the motion from frame 0 (R, t, camera
     frame c) moved from the `predicted` one by `weight` of the way to the `registered` one,
     along the SE(3) geodesic (jaxlie). `weight` 1 is the registration itself."""
-    pose = lambda R, t: jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.from_matrix(R), t)  # noqa: E731
-    start = pose(*predicted)
-    step = (pose(*registered) @ start.inverse()).log() * jnp.asarray(weight, predicted[1].dtype)
+    start = _se3(*predicted)
+    step = (_se3(*registered) @ start.inverse()).log() * jnp.asarray(weight, predicted[1].dtype)
     moved = jaxlie.SE3.exp(step) @ start
     return moved.rotation().as_matrix(), moved.translation()
 
@@ -810,11 +813,12 @@ def chain_estimates(
     eye = jnp.eye(3, dtype=origin.dtype)
 
     def step(carry, inputs):
-        key_cloud, key_k, key_R, key_t, last_R, last_t, last_k, anchor, count, refused, base_R, base_t, base_k = carry
+        key_cloud, key_k, key_R, key_t, last_R, last_t, last_k, anchor, count, base_R, base_t, base_k = carry
         k, cloud = inputs
         problem = Problem.build(key_cloud, cloud, config)
-        # After a refused frame the prediction is carried on from the anchor instead of the
-        # last registration, which may be the one in error (`anchored_motion`).
+        # After a refused frame (the last registered one is not k − 1) the prediction is carried
+        # on from the anchor instead of the last registration, which may be the one in error.
+        refused = last_k != k - 1
         source = tuple(jnp.where(refused, a, r) for a, r in zip(anchor, (last_R, last_t), strict=True))
         base, last = (base_R, base_t, base_k), (*source, last_k)
         R_pred, t_pred = predicted_motion(base, last, (key_R, key_t), k)
@@ -863,7 +867,7 @@ def chain_estimates(
             for new, old in zip(anchored_motion(predicted_here, (R, t), weight), anchor, strict=True)
         )
         last_k = jnp.where(ok, k, last_k)
-        return (key_cloud, key_k, key_R, key_t, R, t, last_k, anchor, count, ~ok, *base), out
+        return (key_cloud, key_k, key_R, key_t, R, t, last_k, anchor, count, *base), out
 
     zeros = jnp.zeros(3, origin.dtype)
     frames = jnp.arange(1, clouds.valid.shape[0])
@@ -879,7 +883,6 @@ def chain_estimates(
         start_k,
         (eye, zeros),
         start_k,
-        jnp.asarray(False),
         eye,
         zeros,
         start_k,
