@@ -36,13 +36,13 @@ separately). Per family and overall: median, p90 and max.
           default run (`results/tracking_benchmark_chains.npz`) through `filter_keyframes`
           with other options; the registrations, so their statuses, counts and times, are
           those of the saved run.
-    uv run python experiments/tracking_benchmark.py sweep [name]
+    uv run python experiments/tracking_benchmark.py sweep [name [name ...]]
         → results/tracking_refilter_sweep.{json,md} (or <name>_refilter_sweep.*, e.g. for
           tracking_issue_case): the saved registrations of the last
-          default run through `filter_keyframes` with each of `SWEEP`'s settings (one option
-          moved from the default at a time, and a floor added to every measurement's
-          covariance), rate and attitude errors at the end: how much the filter's tuning
-          moves the rate goal with the registrations held fixed
+          default run (or of the named runs, pooled) through `filter_keyframes` with each of
+          `SWEEP`'s settings (one option moved from the default at a time, a factor on every
+          measurement's covariance, and a floor added to it), rate and attitude errors at
+          the end: how much the filter's tuning moves the rate goal with the registrations held fixed
     uv run python experiments/tracking_benchmark.py identified [name]
         → results/<name>_identified.{json,md} (name: tracking_benchmark, or
           tracking_benchmark_from20 for the second draw): the saved registrations of that run
@@ -309,12 +309,21 @@ def registration_errors(name: str = "tracking_benchmark") -> None:
     (RESULTS / f"{out_name}.md").write_text(table + "\n")
 
 
-def refiltered(tumbles: list[dict], rate_hz: float, options: dict, floor_deg: float = 0.0) -> list[dict]:
+def refiltered(
+    tumbles: list[dict], rate_hz: float, options: dict, floor_deg: float = 0.0, cov_scale: float = 1.0
+) -> list[dict]:
     """`filter_errors` of each saved tumble's registrations (`chain_of_track`) filtered again
-    by `filter_keyframes(**options)`, with `floor_deg` added to every measurement's rotation
-    uncertainty (`with_rotation_floor`)."""
+    by `filter_keyframes(**options)`, with every measurement's covariance times `cov_scale` and
+    `floor_deg` added to its rotation uncertainty (`with_rotation_floor`)."""
     run = jax.jit(lambda chain: filter_keyframes(chain, 1 / rate_hz, **options))
-    return [filter_errors(run(with_rotation_floor(chain_of_track(t), floor_deg)), t["truth"], rate_hz) for t in tumbles]
+    chains = (
+        eqx.tree_at(lambda c: c.relative_cov, chain, chain.relative_cov * cov_scale)
+        for chain in map(chain_of_track, tumbles)
+    )
+    return [
+        filter_errors(run(with_rotation_floor(chain, floor_deg)), t["truth"], rate_hz)
+        for chain, t in zip(chains, tumbles, strict=True)
+    ]
 
 
 def refilter(options: dict, name: str) -> None:
@@ -342,9 +351,12 @@ SWEEP = (
     {"floor_deg": 0.02},
     {"floor_deg": 0.05},
     {"floor_deg": 0.1},
+    {"cov_scale": 0.5},
+    {"cov_scale": 2.0},
 )
 """`sweep`'s settings: `filter_keyframes` options, one moved from its default at a time, and
-`floor_deg`, a standard deviation (°) added in quadrature to every measurement's rotation
+`cov_scale`, a factor on every measurement's covariance, and `floor_deg`, a standard
+deviation (°) added in quadrature to every measurement's rotation
 block (the registrations' covariance is overconfident on some views: a floor tells the filter
 to trust no registration beyond it)."""
 
@@ -691,18 +703,21 @@ def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
     return eqx.tree_at(lambda c: c.relative_cov, chain, chain.relative_cov + floor)
 
 
-def sweep(name: str = "tracking_benchmark") -> None:
+def sweep(name: str = "tracking_benchmark", *more: str) -> None:
     """The saved registrations of a run (`name`: the last default run, or e.g.
-    `tracking_issue_case`) through `filter_keyframes` with each of `SWEEP`'s settings →
-    `tracking_refilter_sweep.{json,md}` (`<name>_refilter_sweep.*` for another run): per
-    setting, the rate error at the end (°/s: median, p90, max over the tumbles) and the median
-    attitude error (°)."""
+    `tracking_issue_case`; with `more`, those runs' tumbles pooled with its own) through
+    `filter_keyframes` with each of `SWEEP`'s settings → `tracking_refilter_sweep.{json,md}`
+    (`<name>_refilter_sweep.*` for another run): per setting, the rate error at the end (°/s:
+    median, p90, max over the tumbles) and the median attitude error (°)."""
     benchmark, tumbles = saved_tumbles(name)
+    for other in more:
+        tumbles += saved_tumbles(other)[1]
     rate_hz = benchmark["rate_hz"]
     rows = []
+    modifiers = ("floor_deg", "cov_scale")
     for setting in SWEEP:
-        options = {k: v for k, v in setting.items() if k != "floor_deg"}
-        errors = refiltered(tumbles, rate_hz, options, setting.get("floor_deg", 0.0))
+        options = {k: v for k, v in setting.items() if k not in modifiers}
+        errors = refiltered(tumbles, rate_hz, options, setting.get("floor_deg", 0.0), setting.get("cov_scale", 1.0))
         rate = np.array([e["rate_error_deg_s"] for e in errors])
         attitude = np.array([e["attitude_error_deg"] for e in errors])
         rows.append(
@@ -718,7 +733,8 @@ def sweep(name: str = "tracking_benchmark") -> None:
             }
         )
     lines = [
-        f"The registrations of `{name}.json` ({len(tumbles)} tumbles) filtered again, one setting moved at a time.",
+        f"The registrations of `{', '.join((name, *more))}` ({len(tumbles)} tumbles) filtered again, "
+        "one setting moved at a time.",
         "",
         "| setting | rate error at the end, °/s: median / p90 / max | attitude error median, ° | non-finite |",
         "|---|---|---|---|",
@@ -921,7 +937,7 @@ if __name__ == "__main__":
     elif sys.argv[1:2] == ["refilter"]:
         refilter(json.loads(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "options")
     elif sys.argv[1:2] == ["sweep"]:
-        sweep(*sys.argv[2:3])
+        sweep(*sys.argv[2:])
     elif sys.argv[1:2] == ["identified"]:
         identified(*sys.argv[2:3])
     elif sys.argv[1:2] == ["model"]:
