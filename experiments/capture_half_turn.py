@@ -19,7 +19,7 @@ from _common import RESULTS, write_json
 
 import jaxpose as jp
 from jaxpose import _capture as C
-from jaxpose._estimate import STATUS_NAME
+from jaxpose._estimate import STATUS_NAME, rotation_between
 from jaxpose._fine import fine_refine
 from jaxpose._poses import displacement_from_motion
 from jaxpose._problem import sized_config
@@ -46,7 +46,8 @@ def main() -> None:
         problem.frame.origin, problem.frame.axes, jnp.asarray(case.rotation), jnp.asarray(case.translation)
     ).astype(problem.d.dtype)
     starts = {"truth": truth, "estimate": est.params}
-    rows = [{"start": name, **scored(problem, config, p, truth)} for name, p in starts.items()]
+    score = scorer(problem, config)
+    rows = [{"start": name, **score(p, truth)} for name, p in starts.items()]
     report = {
         "pair": PAIR,
         "motion_deg": case.motion_deg,
@@ -61,32 +62,36 @@ def main() -> None:
     print(markdown(report))
 
 
-def scored(problem, config, p, truth) -> dict:
-    """The capture stage's support of start p (frame n) after its hypothesis fit and after the
-    narrow fit alone, the consistency at p itself, and how far each fit ends from the truth."""
+def scorer(problem, config):
+    """A function of a start p (frame n) and the truth: the capture stage's support of p after
+    its hypothesis fit and after the narrow fit alone, the consistency at p itself, and how far
+    the hypothesis fit ends from the truth (degrees)."""
     so3 = config.so3
     prev = C.previous_surface(problem, so3.points)
     curr, curr_grid = C.current_surface(problem, so3.points)
     gate = jnp.asarray(config.fine.inlier, problem.d.dtype)
     views = C.view_maps(problem)
-    params, support, agree = C._hypothesis_fit(problem, config, prev, curr, curr_grid)(p[None])
+    fit = C._hypothesis_fit(problem, config, prev, curr, curr_grid)
     narrow = C._hypothesis_configs(config)[1]
-    fit = fine_refine(problem, narrow, p)
-    narrow_agree = C.consistency(problem, fit.params, prev, curr, curr_grid, gate, views)
-    return {
-        "support": float(support[0]),
-        "consistency": float(agree[0]),
-        "fit_from_truth_deg": apart_deg(params[0], truth),
-        "narrow_support": float(fit.inliers * narrow_agree),
-        "narrow_inliers": float(fit.inliers),
-        "narrow_consistency": float(narrow_agree),
-        "consistency_at_start": float(C.consistency(problem, p, prev, curr, curr_grid, gate, views)),
-    }
 
+    def consistency(p):
+        return C.consistency(problem, p, prev, curr, curr_grid, gate, views)
 
-def apart_deg(p, q) -> float:
-    """The angle (degrees) between the rotations of two displacements (frame n)."""
-    return float(np.degrees(jp.rotation_angle(jp.rotation(*p[:3]), jp.rotation(*q[:3]))))
+    def score(p, truth) -> dict:
+        params, support, agree = fit(p[None])
+        alone = fine_refine(problem, narrow, p)
+        alone_agree = consistency(alone.params)
+        return {
+            "support": float(support[0]),
+            "consistency": float(agree[0]),
+            "fit_from_truth_deg": float(np.degrees(rotation_between(params[0], truth))),
+            "narrow_support": float(alone.inliers * alone_agree),
+            "narrow_inliers": float(alone.inliers),
+            "narrow_consistency": float(alone_agree),
+            "consistency_at_start": float(consistency(p)),
+        }
+
+    return score
 
 
 def markdown(report: dict) -> str:

@@ -29,12 +29,14 @@ from jaxpose.evaluation import realistic as rl
 from jaxpose.sim import targets
 
 THRESHOLD_CM = 0.1
+PAIRS = 8
+"""Pairs per target and noise level, as in the realistic benchmark."""
 
 
 def key_of(case) -> jax.Array:
     """The benchmark's key of a pair (its index in the whole set)."""
     ti, li = targets.BUILT_IN.index(case.target), rl.LEVELS_CM.index(case.sigma_cm)
-    return jax.random.fold_in(jax.random.key(0), (ti * len(rl.LEVELS_CM) + li) * 8 + case.index)
+    return jax.random.fold_in(jax.random.key(0), (ti * len(rl.LEVELS_CM) + li) * PAIRS + case.index)
 
 
 def offsets(q, truth) -> list[float]:
@@ -79,7 +81,7 @@ def study(case) -> dict | None:
 
 
 def main() -> None:
-    cases = rl.make_cases(8, 0, levels=(0.0,))
+    cases = rl.make_cases(PAIRS, 0, levels=(0.0,))
     rows = [row for row in map(study, cases) if row is not None]
     write_json("noise_free_slide.json", {"threshold_cm": THRESHOLD_CM, "rows": rows})
     head = (

@@ -314,15 +314,11 @@ def refiltered(
 ) -> list[dict]:
     """`filter_errors` of each saved tumble's registrations (`chain_of_track`) filtered again
     by `filter_keyframes(**options)`, with every measurement's covariance times `cov_scale` and
-    `floor_deg` added to its rotation uncertainty (`with_rotation_floor`)."""
+    `floor_deg` added to its rotation uncertainty (`with_covariance`)."""
     run = jax.jit(lambda chain: filter_keyframes(chain, 1 / rate_hz, **options))
-    chains = (
-        eqx.tree_at(lambda c: c.relative_cov, chain, chain.relative_cov * cov_scale)
-        for chain in map(chain_of_track, tumbles)
-    )
     return [
-        filter_errors(run(with_rotation_floor(chain, floor_deg)), t["truth"], rate_hz)
-        for chain, t in zip(chains, tumbles, strict=True)
+        filter_errors(run(with_covariance(chain_of_track(t), cov_scale, floor_deg)), t["truth"], rate_hz)
+        for t in tumbles
     ]
 
 
@@ -696,11 +692,11 @@ def gicp_table(base: str = "tracking_benchmark") -> None:
     (RESULTS / f"{name}.md").write_text(table)
 
 
-def with_rotation_floor(chain: Chain, floor_deg: float) -> Chain:
-    """`chain` with (floor_deg, in radians)² added to the rotation block of every measurement
-    covariance (rad², frame c)."""
+def with_covariance(chain: Chain, scale: float, floor_deg: float) -> Chain:
+    """`chain` with every measurement covariance times `scale` and (floor_deg, in radians)²
+    added to its rotation block (rad², frame c)."""
     floor = jnp.diag(jnp.asarray([np.radians(floor_deg) ** 2] * 3 + [0.0] * 3, chain.relative_cov.dtype))
-    return eqx.tree_at(lambda c: c.relative_cov, chain, chain.relative_cov + floor)
+    return eqx.tree_at(lambda c: c.relative_cov, chain, chain.relative_cov * scale + floor)
 
 
 def sweep(name: str = "tracking_benchmark", *more: str) -> None:
