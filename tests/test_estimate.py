@@ -584,8 +584,10 @@ def test_a_dropped_fine_result_without_a_refine_is_not_converged(paper_clouds):
 @pytest.mark.parametrize(
     "b_angles, b_inliers, b_conflict, b_wins, tied",
     [
-        ((0.0, 0.0, 15.0), 0.70, 0.030, False, False),  # apart, more inliers, more conflict: a loses nothing
-        ((0.0, 0.0, 15.0), 0.60, 0.010, True, False),  # apart, fewer inliers, less conflict: b wins
+        ((0.0, 0.0, 15.0), 0.70, 0.030, False, True),  # more inliers beyond the noise band, more conflict: a, ambiguous
+        ((0.0, 0.0, 15.0), 0.60, 0.010, True, True),  # fewer inliers beyond the band, less conflict: b, ambiguous
+        ((0.0, 0.0, 15.0), 0.665, 0.010, True, False),  # more inliers within the band, less conflict: b
+        ((0.0, 0.0, 15.0), 0.635, 0.030, False, False),  # fewer inliers and more conflict: a
         ((0.0, 0.0, 15.0), 0.60, 0.0205, False, True),  # conflicts within CONFLICT_TIE: inliers, ambiguous
         ((0.0, 0.0, 15.0), 0.70, 0.0205, True, True),  # the same tie, b has more inliers: b wins, ambiguous
         ((0.0, 0.0, 0.3), 0.70, 0.030, True, False),  # the same motion within 1°: the inlier rule
@@ -597,7 +599,9 @@ def test_fits_far_apart_are_weighed_by_what_the_views_saw(b_angles, b_inliers, b
     apart, the smaller free-space conflict wins whatever the inlier fractions; within 1°, where
     the conflicts lie within `CONFLICT_TIE`, or where a conflict is not judged (NaN), the
     inlier fraction (then the RMS) decides.
-    `equally_good_and_apart` also ties fits apart whose conflicts lie within `CONFLICT_TIE`."""
+    `equally_good_and_apart` also ties fits apart whose conflicts lie within `CONFLICT_TIE`,
+    and fits apart that the conflict and the inlier fraction rank oppositely, each beyond its
+    tie (`disagree`; these fits show range noise, so the inlier band is `TURN_TIE`)."""
     from jaxpose._estimate import CONFLICT_TIE, equally_good_and_apart, prefers
 
     a = _fine_result((0.0, 0.0, 0.0), 0.65, conflict=0.020)
@@ -608,6 +612,33 @@ def test_fits_far_apart_are_weighed_by_what_the_views_saw(b_angles, b_inliers, b
     assert bool(prefers(a, b)) == (b_inliers > 0.66)  # without a config: inliers alone
     assert bool(equally_good_and_apart(a, b, config)) == tied
     assert CONFLICT_TIE > abs(0.0205 - 0.020)
+
+
+@pytest.mark.parametrize(
+    "b_inliers, b_conflict, b_rms, expected",
+    [
+        (0.8301, 0.1006, 0.0002, True),  # the held-out noise-free upper stage: the measures disagree
+        (0.8420, 0.1006, 0.0002, False),  # inliers within FINE_TIE noise-free: the conflict decides
+        (0.8301, 0.1060, 0.0002, False),  # conflicts within CONFLICT_TIE: no ranking to disagree with
+        (0.8301, 0.1006, 0.0030, False),  # the same shares under range noise: inliers within TURN_TIE
+        (0.8650, 0.1006, 0.0002, False),  # b better by both measures
+        (0.8301, np.nan, 0.0002, False),  # b's conflict not judged
+    ],
+)
+def test_the_conflict_and_the_inlier_fraction_disagree(b_inliers, b_conflict, b_rms, expected):
+    """`disagree`: the free-space conflict and the inlier fraction rank two fits oppositely,
+    each beyond its tie (`CONFLICT_TIE`; `turn_tie` of the first fit: `FINE_TIE` without range
+    noise, `TURN_TIE` with it). The first row is the held-out draw's noise-free upper stage
+    (seed 5, #4): the truth's fit (a) explained 0.017 more of the current cloud, the fit 15°
+    away about the long axis (b) conflicted 0.007 less, and was reported a success."""
+    from jaxpose._estimate import disagree, equally_good_and_apart
+
+    a = _fine_result((0.0, 0.0, 0.0), 0.8472, rms=b_rms, conflict=0.1074)
+    b = _fine_result((0.0, 0.0, 15.0), b_inliers, rms=b_rms, conflict=b_conflict)
+    assert bool(disagree(a, b)) == expected
+    assert bool(disagree(b, a)) == expected
+    if expected:
+        assert bool(equally_good_and_apart(a, b, jp.Config()))
 
 
 def test_the_truth_contradicts_the_views_less_than_a_turn_about_the_long_axis():

@@ -51,3 +51,19 @@ def test_time_call_reports_compile_and_median():
     res = time_call(jax.jit(lambda x: jnp.sin(x).sum()), jnp.ones(100), repeats=3)
     assert res["repeats"] == 3 and res["compile_s"] > 0 and res["median_s"] > 0
     assert machine()["backend"] == jax.default_backend()
+
+
+def test_machine_names_the_cpu_model():
+    """Results record the CPU's model: XLA:CPU compiles for the host's instruction set, so
+    the same code gives different round-off (and a tracker's chain different tracks) on
+    another CPU."""
+    import platform
+
+    model = machine()["cpu_model"]
+    assert isinstance(model, str) and model
+    try:
+        with open("/proc/cpuinfo") as info:
+            names = [line.split(":", 1)[1].strip() for line in info if line.startswith("model name")]
+    except OSError:
+        names = []
+    assert model == (names[0] if names else platform.processor() or platform.machine())
