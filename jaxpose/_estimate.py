@@ -366,9 +366,9 @@ def disagree(a: FineResult, b: FineResult) -> Bool[Array, ""]:
     right where they disagree: the inlier fraction measures overlap, and a turn about a
     near-symmetry axis can line up more of two views than the truth does. Not always: on a
     noise-free upper stage (held-out draw, seed 5, #4) the truth's fit explained 0.017 more of
-    the current cloud and the fit 15° away about the long axis had a conflict 0.007 smaller,
-    and the estimate was a success 15° off (docs, Findings: when the two measures
-    disagree). Where they disagree, the views do not settle the choice."""
+    the current cloud and the fit 15° away about the long axis had a conflict 0.007 smaller:
+    by the conflict alone that turn is a success 15° off (docs, Findings: when the two
+    measures disagree). Where they disagree, the views do not settle the choice."""
     tie = turn_tie(a)
     fewer_conflicts = b.conflict < a.conflict - CONFLICT_TIE
     more_conflicts = b.conflict > a.conflict + CONFLICT_TIE
