@@ -151,17 +151,32 @@ def source_digest() -> str:
     return digest.hexdigest()
 
 
+def _cpuinfo(prefixes: tuple[str, ...]) -> list[str] | None:
+    """The distinct lines of Linux's /proc/cpuinfo that start with one of `prefixes`, stripped,
+    in order (one per kind on a machine whose cores are alike); None where it cannot be read."""
+    try:
+        with open("/proc/cpuinfo") as info:
+            return list(dict.fromkeys(line.strip() for line in info if line.startswith(prefixes)))
+    except OSError:
+        return None
+
+
 @functools.cache
 def _cpu_identity() -> str:
     """The CPU's model and instruction-set flags (Linux's /proc/cpuinfo, else the platform's
     description): XLA:CPU compiles for the host's instruction set, so a program compiled on one
     CPU must never run on another (a home folder shared between machines)."""
-    try:
-        with open("/proc/cpuinfo") as info:
-            lines = [line.strip() for line in info if line.startswith(("model name", "flags", "Features"))]
-        return "\n".join(dict.fromkeys(lines))
-    except OSError:
-        return f"{platform.machine()} {platform.processor()}"
+    lines = _cpuinfo(("model name", "flags", "Features"))
+    return f"{platform.machine()} {platform.processor()}" if lines is None else "\n".join(lines)
+
+
+def cpu_model() -> str:
+    """The CPU's model name (Linux's /proc/cpuinfo; else the platform's processor), for the
+    record of what results were measured on: the same code gives different round-off on
+    different CPUs (`_cpu_identity`), and a tracker's chain of registrations carries such a
+    difference on."""
+    lines = _cpuinfo(("model name",))
+    return lines[0].split(":", 1)[1].strip() if lines else platform.processor() or platform.machine()
 
 
 def machine_identity() -> tuple:

@@ -19,24 +19,11 @@ from .._batch import score_batch
 from .._config import Capacities, Config
 from .._estimate import estimate, estimate_problem
 from .._problem import Problem
+from .._programs import cpu_model
 from ..sim._camera import Camera
 from ..sim._scenarios import paper_pair, paper_pose
 from ..sim._simulate import simulate
 from ..sim.targets import n5
-
-
-def cpu_model() -> str:
-    """The CPU's model name (Linux's /proc/cpuinfo; else the platform's processor): the same
-    code gives different round-off on different CPUs, since XLA:CPU compiles for the host's
-    instruction set, and a tracker's chain of registrations carries such a difference on."""
-    try:
-        with open("/proc/cpuinfo") as info:
-            for line in info:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def machine() -> dict:
