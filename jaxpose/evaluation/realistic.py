@@ -160,8 +160,9 @@ def make_cases(
 ) -> list[Case]:
     """`pairs` pairs for every target and noise level (see the module docstring). `keep`: only
     the pairs whose label (`Case.label`, e.g. "n5 σ0.5 #3") it accepts are simulated; each
-    pair is drawn from its own seed (`seed`, target, level, index), so a kept pair is the same
-    as in the whole set."""
+    pair is drawn from its own seed (`seed`, the target's position in `names`, the level's
+    position in `levels`, index), so a kept pair is the same as in the whole set, whereas a
+    shorter `names` or `levels` draws other pairs under the same labels."""
     cases = []
     for ti, name in enumerate(names):
         target = getattr(targets, name)()
